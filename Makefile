@@ -1,0 +1,39 @@
+# The two commands a new user needs: `make demo` and `make test`. Both create .venv and install
+# everything from this repository's own files; nothing is installed by hand.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
+
+.PHONY: demo test install browser proto lint bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	rm -f $(VENV)/.installed-*
+	touch $@
+
+install: $(STAMP)
+
+# Debian's Chromium for the browser tests (never a downloaded browser build).
+browser:
+	bash scripts/install-browser.sh
+
+demo: $(STAMP)
+	$(VENV)/bin/tiplog up
+
+test: $(STAMP) browser
+	$(PY) -m pytest -q
+
+# Regenerate tiplog/v1 from proto/ (tests fail when the committed code differs).
+proto: $(STAMP)
+	$(PY) -m grpc_tools.protoc -I proto --python_out=. --pyi_out=. proto/tiplog/v1/*.proto
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check tiplog services tests benchmarks
+
+bench: $(STAMP)
+	$(PY) -m benchmarks
+
+clean:
+	rm -rf $(VENV) .pytest_cache

@@ -1,0 +1,19 @@
+"""`python -m services.bench`: joins the bus and declares its liveliness token; its own work
+lands with its issue."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from tiplog.config import ServiceConfig
+from tiplog.service import idle_until_stopped, run_service
+
+NAME = "bench"
+
+
+class BenchConfig(ServiceConfig):
+    """Configuration of the bench service (section `bench:` of the YAML file)."""
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run_service(NAME, BenchConfig, idle_until_stopped, argv, description=__doc__)

@@ -1,0 +1,1 @@
+"""Dashboard: FastAPI page with the live state over websockets."""

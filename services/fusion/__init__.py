@@ -1,0 +1,1 @@
+"""Fusion service: error-state Kalman filter under the trocar's remote centre of motion."""

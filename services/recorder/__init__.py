@@ -1,0 +1,1 @@
+"""Recorder: every topic into crash-safe MCAP files with embedded schemas."""

@@ -1,0 +1,1 @@
+"""Sensor gateway: the clip-on device on serial and the camera, stamped on arrival and published one message per sample."""

@@ -1,0 +1,1 @@
+"""Vision service: shaft silhouette, consistency gate and tangent-plane geometry from each camera frame."""

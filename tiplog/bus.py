@@ -1,0 +1,347 @@
+"""The Zenoh bus: one session per process, typed publishers and subscribers, liveliness.
+
+Every payload is a serialised protobuf message. Each put carries a small attachment,
+`<u64 seq><i64 publish_ns><u32 publisher_id><message full name utf-8>`, so that any
+subscriber (the recorder above all) can count gaps per publisher and decode topics it has
+never heard of. A payload that does not decode is counted and logged, never raised into the
+subscriber's callback: one corrupt message must not take a service down.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import random
+import struct
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Generic, Literal, TypeVar
+
+import zenoh
+from google.protobuf.message import DecodeError, Message
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from tiplog import topics
+from tiplog.clock import now_ns
+
+log = logging.getLogger(__name__)
+
+M = TypeVar("M", bound=Message)
+
+_ATTACH = struct.Struct("<QqI")
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+class BusConfig(BaseModel):
+    """Where the Zenoh session connects, listens, and which key prefix it uses."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    listen: list[str] = Field(default_factory=list)
+    prefix: str = "tiplog/"
+    multicast_scouting: bool = False
+    # Shared memory for large payloads between processes on one host (zenoh default: on).
+    shared_memory: bool = True
+
+    @field_validator("prefix")
+    @classmethod
+    def _prefix_shape(cls, v: str) -> str:
+        if not v or not v.endswith("/") or v.startswith("/") or any(c in v for c in "*$#?"):
+            raise ValueError("must be a key prefix ending in '/', e.g. 'tiplog/'")
+        return v
+
+    @field_validator("connect", "listen")
+    @classmethod
+    def _endpoints(cls, v: list[str]) -> list[str]:
+        for e in v:
+            if "/" not in e or e.split("/", 1)[0] not in ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws"):
+                raise ValueError(f"endpoint {e!r} is not of the form 'tcp/HOST:PORT'")
+        return v
+
+    def zenoh_config(self) -> zenoh.Config:
+        """The zenoh.Config this bus configuration stands for."""
+        conf = zenoh.Config()
+        conf.insert_json5("mode", json.dumps(self.mode))
+        conf.insert_json5("connect/endpoints", json.dumps(self.connect))
+        conf.insert_json5("listen/endpoints", json.dumps(self.listen))
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        conf.insert_json5("transport/shared_memory/enabled", json.dumps(self.shared_memory))
+        return conf
+
+
+@dataclass(frozen=True, slots=True)
+class SampleInfo:
+    """What the bus knows about a received message besides its payload."""
+
+    topic: str  # without prefix
+    seq: int  # per-publisher sequence number, from 0
+    publish_ns: int  # publisher's host clock at put
+    receive_ns: int  # this host's clock on arrival
+    publisher_id: int
+    type_name: str
+
+
+def encode_attachment(seq: int, publish_ns: int, publisher_id: int, type_name: str) -> bytes:
+    return _ATTACH.pack(seq, publish_ns, publisher_id) + type_name.encode()
+
+
+def decode_attachment(raw: bytes | None) -> tuple[int, int, int, str]:
+    """(seq, publish_ns, publisher_id, type_name); zeros and '' for a foreign publisher."""
+    if raw is None or len(raw) < _ATTACH.size:
+        return 0, 0, 0, ""
+    seq, pub_ns, pid = _ATTACH.unpack_from(raw)
+    return seq, pub_ns, pid, raw[_ATTACH.size :].decode(errors="replace")
+
+
+class Publisher(Generic[M]):
+    """Typed publisher for one topic. `put(msg)` serialises and sends."""
+
+    def __init__(self, bus: Bus, topic: str, msg_type: type[M], reliable: bool):
+        self.topic = topic
+        self.msg_type = msg_type
+        self._type_name = msg_type.DESCRIPTOR.full_name
+        self._id = random.getrandbits(32)
+        self._seq = 0
+        self._lock = threading.Lock()
+        cc = zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
+        self._pub = bus.session.declare_publisher(bus.key(topic), congestion_control=cc)
+
+    def put(self, msg: M) -> None:
+        if not isinstance(msg, self.msg_type):
+            raise TypeError(f"{self.topic} carries {self._type_name}, got {type(msg).__name__}")
+        self.put_bytes(msg.SerializeToString())
+
+    def put_bytes(self, payload: bytes) -> None:
+        """Send an already serialised payload of this topic's type (replay, relays)."""
+        with self._lock:
+            seq = self._seq
+            self._seq += 1
+        att = encode_attachment(seq, now_ns(), self._id, self._type_name)
+        self._pub.put(payload, attachment=att)
+
+    def close(self) -> None:
+        self._pub.undeclare()
+
+    def __enter__(self) -> Publisher[M]:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Subscriber(Generic[M]):
+    """Typed subscriber. With a callback, it is called on Zenoh's thread with
+    `(msg, info)`: keep it short. Without one, messages queue (bounded, oldest dropped and
+    counted) and `recv()` takes them on the caller's thread."""
+
+    def __init__(
+        self,
+        bus: Bus,
+        key_expr: str,
+        msg_type: type[M] | None,
+        callback: Callable[[M, SampleInfo], None] | None,
+        maxsize: int,
+    ):
+        self._bus = bus
+        self._msg_type = msg_type
+        self._callback = callback
+        self._queue: queue.Queue[tuple[M, SampleInfo]] | None = None if callback else queue.Queue(maxsize=maxsize)
+        self.received = 0
+        self.decode_errors = 0
+        self.queue_drops = 0
+        self._sub = bus.session.declare_subscriber(bus.key(key_expr), self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        recv = now_ns()
+        topic = self._bus.topic_of(str(sample.key_expr))
+        att = sample.attachment
+        seq, pub_ns, pid, type_name = decode_attachment(att.to_bytes() if att is not None else None)
+        info = SampleInfo(topic, seq, pub_ns, recv, pid, type_name)
+        try:
+            # A payload without a tiplog attachment, or naming another type, is as undecodable
+            # as a corrupt one: a protobuf parser accepts many random byte strings.
+            if not type_name:
+                raise ValueError("no tiplog attachment (foreign publisher?)")
+            if self._msg_type is not None and type_name != self._msg_type.DESCRIPTOR.full_name:
+                raise ValueError(f"carries {type_name}, expected {self._msg_type.DESCRIPTOR.full_name}")
+            msg_type = self._msg_type or topics.message_class_by_name(type_name)
+            msg = msg_type.FromString(sample.payload.to_bytes())
+        except (DecodeError, KeyError, ValueError, RuntimeError) as e:
+            self.decode_errors += 1
+            if self.decode_errors <= 10 or self.decode_errors % 1000 == 0:
+                log.warning("undecodable payload on %s (%d so far): %s", topic, self.decode_errors, e)
+            return
+        self.received += 1
+        if self._callback is not None:
+            try:
+                self._callback(msg, info)
+            except Exception:  # a subscriber bug must not kill Zenoh's thread
+                log.exception("subscriber callback for %s raised", topic)
+            return
+        assert self._queue is not None
+        try:
+            self._queue.put_nowait((msg, info))
+        except queue.Full:
+            self.queue_drops += 1
+            try:
+                self._queue.get_nowait()
+            except queue.Empty:
+                pass
+            self._queue.put_nowait((msg, info))
+
+    def recv(self, timeout: float | None = None) -> tuple[M, SampleInfo] | None:
+        """Next (message, info), or None after `timeout` seconds."""
+        if self._queue is None:
+            raise RuntimeError("this subscriber delivers to its callback")
+        try:
+            return self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+    def __enter__(self) -> Subscriber[M]:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class RawSubscriber:
+    """Undecoded payloads with their info, for the recorder: `callback(payload, info)`."""
+
+    def __init__(self, bus: Bus, key_expr: str, callback: Callable[[bytes, SampleInfo], None]):
+        self._bus = bus
+        self._callback = callback
+        self._sub = bus.session.declare_subscriber(bus.key(key_expr), self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        recv = now_ns()
+        topic = self._bus.topic_of(str(sample.key_expr))
+        att = sample.attachment
+        seq, pub_ns, pid, type_name = decode_attachment(att.to_bytes() if att is not None else None)
+        try:
+            self._callback(sample.payload.to_bytes(), SampleInfo(topic, seq, pub_ns, recv, pid, type_name))
+        except Exception:
+            log.exception("raw subscriber callback for %s raised", topic)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+    def __enter__(self) -> RawSubscriber:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Bus:
+    """One Zenoh session with the tiplog key prefix. Use as a context manager: the session
+    and everything declared on it is closed on exit (an unclosed queryable hangs exit)."""
+
+    def __init__(self, config: BusConfig | None = None, service: str | None = None):
+        self.config = config or BusConfig()
+        self.prefix = self.config.prefix
+        self.service = service
+        self.session = zenoh.open(self.config.zenoh_config())
+        self._declared: list[Any] = []
+        self._closed = False
+        if service:
+            self._declared.append(self.session.liveliness().declare_token(self.key(f"{topics.ALIVE}/{service}")))
+
+    # keys -----------------------------------------------------------------
+    def key(self, topic: str) -> str:
+        return self.prefix + topic
+
+    def topic_of(self, key: str) -> str:
+        return key[len(self.prefix) :] if key.startswith(self.prefix) else key
+
+    # declarations ---------------------------------------------------------
+    def publisher(self, topic: str, msg_type: type[M] | None = None, *, reliable: bool = True) -> Publisher[M]:
+        """Publisher for `topic`; its type comes from the registry unless given."""
+        pub = Publisher(self, topic, msg_type or topics.message_type(topic), reliable)
+        self._declared.append(pub)
+        return pub
+
+    def subscribe(
+        self,
+        topic: str,
+        callback: Callable[[M, SampleInfo], None] | None = None,
+        *,
+        msg_type: type[M] | None = None,
+        maxsize: int = 10_000,
+    ) -> Subscriber[M]:
+        """Subscriber for `topic` (a key expression without prefix; wildcards decode by the
+        attachment's type name when `msg_type` is not given and the topic is not registered)."""
+        if msg_type is None and topic in topics.TOPICS:
+            msg_type = topics.TOPICS[topic]
+        sub = Subscriber(self, topic, msg_type, callback, maxsize)
+        self._declared.append(sub)
+        return sub
+
+    def subscribe_raw(self, key_expr: str, callback: Callable[[bytes, SampleInfo], None]) -> RawSubscriber:
+        sub = RawSubscriber(self, key_expr, callback)
+        self._declared.append(sub)
+        return sub
+
+    def queryable(self, topic: str, handler: Callable[[zenoh.Query], None]) -> Any:
+        q = self.session.declare_queryable(self.key(topic), handler)
+        self._declared.append(q)
+        return q
+
+    def request(self, topic: str, payload: bytes, timeout_s: float = 2.0) -> list[bytes]:
+        """Send a query and return the payloads of the successful replies."""
+        out: list[bytes] = []
+        for reply in self.session.get(self.key(topic), payload=payload, timeout=timeout_s):
+            if reply.ok is not None:
+                out.append(reply.ok.payload.to_bytes())
+            else:
+                log.warning("error reply on %s: %s", topic, reply.err.payload.to_bytes()[:200])
+        return out
+
+    def alive(self, timeout_s: float = 1.0) -> set[str]:
+        """Names of the services whose liveliness tokens are visible now."""
+        names = set()
+        base = self.key(topics.ALIVE + "/")
+        for reply in self.session.liveliness().get(self.key(f"{topics.ALIVE}/**"), timeout=timeout_s):
+            if reply.ok is not None:
+                names.add(str(reply.ok.key_expr)[len(base) :])
+        return names
+
+    def watch_alive(self, callback: Callable[[str, bool], None]) -> Any:
+        """Call `callback(service, alive)` on every token appearing or vanishing."""
+        base = self.key(topics.ALIVE + "/")
+
+        def on(sample: zenoh.Sample) -> None:
+            callback(str(sample.key_expr)[len(base) :], sample.kind == zenoh.SampleKind.PUT)
+
+        sub = self.session.liveliness().declare_subscriber(self.key(f"{topics.ALIVE}/**"), on, history=True)
+        self._declared.append(sub)
+        return sub
+
+    # lifetime -------------------------------------------------------------
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for d in reversed(self._declared):
+            try:
+                if hasattr(d, "close"):
+                    d.close()
+                else:
+                    d.undeclare()
+            except Exception as e:  # already undeclared by a failed peer; closing must finish
+                log.debug("undeclare failed: %s", e)
+        self._declared.clear()
+        self.session.close()
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,62 @@
+"""`tiplog`: the one entry point. Each subcommand's arguments and work live in the package that
+owns it (imported only when that subcommand is chosen or for --help), so `tiplog --help`
+stays fast and a missing optional dependency only affects its own subcommand."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from tiplog import __version__
+from tiplog.config import ConfigError
+from tiplog.service import setup_logging
+
+# command -> (module providing register(parser), one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "up": ("tiplog.up", "run the whole system (simulated bench by default)"),
+    "sim": ("services.bench.cli", "generate simulated sessions and fidelity reports"),
+    "replay": ("services.recorder.replay_cli", "publish a recording back onto the bus"),
+    "fusion": ("services.fusion.cli", "run the filter offline on a recording, with sensor subsets"),
+    "evaluate": ("services.fusion.evaluate_cli", "paper tables and plots against the ground truth"),
+    "calibrate": ("services.fusion.calibrate_cli", "fit calibration constants from a fit-only session"),
+    "vision": ("services.vision.cli", "vision tools: train the segmentation network, run on a file"),
+    "record": ("services.recorder.cli", "record the bus to MCAP; control a running recorder; recover a file"),
+    "info": ("services.recorder.info_cli", "duration, topics, rates, counts, gaps and metadata of a recording"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tiplog",
+        description="Record how a hand-held laparoscopic instrument moves: IMU, ToF and camera fused under the trocar's remote centre of motion.",
+    )
+    parser.add_argument("--version", action="version", version=f"tiplog {__version__}")
+    parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module, help_) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        importlib.import_module(module).register(p)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    setup_logging(args.log_level)
+    func = getattr(args, "func", None)
+    if func is None:
+        parser.parse_args([args.command, "--help"])
+        return 2
+    try:
+        return int(func(args) or 0)
+    except ConfigError as e:
+        print(str(e), file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,141 @@
+"""Configuration: YAML file, then environment, then command-line overrides, validated once.
+
+One YAML file serves the whole system: a `bus:` section shared by every service and one
+section per service named after it (`sensor_gateway:`, `fusion:`, ...). A service reads
+`bus` and its own section. Environment variables `TIPLOG_<SECTION>__<FIELD>=value` and
+`--set section.field=value` override the file; values are parsed as YAML scalars.
+
+A bad value raises `ConfigError` whose message is one line per problem, naming the field and
+what is allowed; services turn it into exit status 2.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from tiplog.bus import BusConfig
+
+T = TypeVar("T", bound=BaseModel)
+ENV_PREFIX = "TIPLOG_"
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown or out of range."""
+
+
+class ServiceConfig(BaseModel):
+    """Fields every service has; each service subclasses it with its own."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+    bus: BusConfig = Field(default_factory=BusConfig)
+    log_level: str = Field("INFO", pattern="^(DEBUG|INFO|WARNING|ERROR)$")
+    status_period_s: float = Field(1.0, gt=0.0, le=60.0)
+
+
+def _set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
+    parts = [p for p in dotted.split(".") if p]
+    if not parts:
+        raise ConfigError(f"override {dotted!r}: empty field name")
+    node = data
+    for p in parts[:-1]:
+        nxt = node.setdefault(p, {})
+        if not isinstance(nxt, dict):
+            raise ConfigError(f"override {dotted!r}: {p} is not a section")
+        node = nxt
+    node[parts[-1]] = value
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """'section.field=value' -> ('section.field', parsed YAML value)."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r} is not of the form field=value")
+    key, raw = text.split("=", 1)
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError as e:
+        raise ConfigError(f"override {key}: value {raw!r} is not valid YAML ({e.__class__.__name__})") from None
+    return key.strip(), value
+
+
+def format_validation_error(err: ValidationError, where: str = "") -> str:
+    lines = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "(root)"
+        if where:
+            loc = f"{where}.{loc}" if loc != "(root)" else where
+        msg = e["msg"]
+        if e["type"] == "extra_forbidden":
+            msg = "unknown field"
+        got = e.get("input")
+        got_s = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
+        lines.append(f"config error: {loc}: {msg}{got_s}")
+    return "\n".join(lines)
+
+
+def load_section(path: str | Path | None, section: str) -> dict[str, Any]:
+    """{'bus': ..., **<section>} from the YAML file (empty when no file)."""
+    if path is None:
+        return {}
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text()) or {}
+    except FileNotFoundError:
+        raise ConfigError(f"config error: file {p} does not exist") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"config error: {p} is not valid YAML: {e}") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"config error: {p} must hold a mapping of sections")
+    out: dict[str, Any] = {}
+    if "bus" in doc:
+        out["bus"] = doc["bus"]
+    sec = doc.get(section) or {}
+    if not isinstance(sec, dict):
+        raise ConfigError(f"config error: section {section!r} in {p} must be a mapping")
+    out.update(sec)
+    return out
+
+
+def env_overrides(section: str, env: Mapping[str, str] | None = None) -> list[tuple[str, Any]]:
+    """Overrides from TIPLOG_BUS__MODE / TIPLOG_<SECTION>__FIELD__SUB variables."""
+    env = os.environ if env is None else env
+    out = []
+    sec_prefix = f"{ENV_PREFIX}{section.upper()}__"
+    bus_prefix = f"{ENV_PREFIX}BUS__"
+    for k, v in env.items():
+        if k.startswith(bus_prefix):
+            out.append(("bus." + k[len(bus_prefix) :].lower().replace("__", "."), yaml.safe_load(v)))
+        elif k.startswith(sec_prefix):
+            out.append((k[len(sec_prefix) :].lower().replace("__", "."), yaml.safe_load(v)))
+    return out
+
+
+def load_config(
+    model: type[T],
+    section: str,
+    path: str | Path | None = None,
+    overrides: Iterable[str | tuple[str, Any]] = (),
+    env: Mapping[str, str] | None = None,
+) -> T:
+    """Build and validate `model` from file, environment and overrides (later wins)."""
+    data = load_section(path, section)
+    pairs: list[tuple[str, Any]] = env_overrides(section, env)
+    for o in overrides:
+        pairs.append(parse_override(o) if isinstance(o, str) else o)
+    for key, value in pairs:
+        _set_path(data, key, value)
+    try:
+        return model.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(e)) from None
+
+
+def dump(config: BaseModel) -> str:
+    """The resolved configuration as one line of JSON, for the log and the recorder."""
+    return config.model_dump_json()
