@@ -1,19 +1,85 @@
-"""`python -m services.recorder`: joins the bus and declares its liveliness token; its own work
-lands with its issue."""
+"""`python -m services.recorder`: records every topic under the prefix into MCAP files.
+
+Listens on `recorder/command` (RecorderCommand -> RecorderReply), publishes `recorder/status`
+at `status_period_s` and on every state change. See `services.recorder.recorder` for times,
+crash safety and the full-disk behaviour.
+"""
 
 from __future__ import annotations
 
+import logging
+import shutil
+import threading
 from collections.abc import Sequence
 
-from tiplog.config import ServiceConfig
-from tiplog.service import idle_until_stopped, run_service
+import zenoh
+
+from services.recorder.config import RecorderConfig
+from services.recorder.mcap_file import Opener, open_file
+from services.recorder.recorder import STATUS_TOPIC, DiskUsage, Recorder
+from tiplog import topics
+from tiplog.bus import Bus
+from tiplog.config import dump
+from tiplog.service import ServiceContext, run_service
+from tiplog.v1 import recorder_pb2
 
 NAME = "recorder"
+log = logging.getLogger("tiplog.recorder")
+
+__all__ = ["NAME", "RecorderConfig", "main", "serve"]
 
 
-class RecorderConfig(ServiceConfig):
-    """Configuration of the recorder service (section `recorder:` of the YAML file)."""
+def serve(
+    bus: Bus,
+    config: RecorderConfig,
+    stop: threading.Event,
+    *,
+    opener: Opener = open_file,
+    disk_usage: DiskUsage = shutil.disk_usage,
+    ready: threading.Event | None = None,
+) -> Recorder:
+    """Run a recorder on `bus` until `stop` is set; returns it (finished) for inspection."""
+    status_pub = bus.publisher(STATUS_TOPIC)
+    status_lock = threading.Lock()
+
+    def publish_status(st: recorder_pb2.RecorderStatus) -> None:
+        with status_lock:
+            status_pub.put(st)
+
+    rec = Recorder(
+        config,
+        opener=opener,
+        disk_usage=disk_usage,
+        on_status=publish_status,
+        extra_metadata={"bus": {"prefix": bus.prefix, "bus_config": dump(bus.config)}},
+    )
+
+    def on_command(query: zenoh.Query) -> None:
+        try:
+            raw = query.payload.to_bytes() if query.payload is not None else b""
+            cmd = recorder_pb2.RecorderCommand.FromString(raw)
+        except Exception as e:
+            query.reply_err(f"not a RecorderCommand: {e}".encode())
+            return
+        reply = rec.command(cmd)
+        query.reply(query.key_expr, reply.SerializeToString())
+
+    rec.start_thread()
+    bus.subscribe_raw(config.key_expr, rec.on_sample)
+    bus.queryable(topics.RECORDER_COMMAND, on_command)
+    publish_status(rec.status())
+    if ready is not None:
+        ready.set()
+    while not stop.wait(config.status_period_s):
+        publish_status(rec.status())
+    rec.close()
+    publish_status(rec.status())
+    return rec
+
+
+def _body(ctx: ServiceContext[RecorderConfig]) -> None:
+    serve(ctx.bus, ctx.config, ctx.stop)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_service(NAME, RecorderConfig, idle_until_stopped, argv, description=__doc__)
+    return run_service(NAME, RecorderConfig, _body, argv, description=__doc__)

@@ -1,0 +1,43 @@
+"""Configuration of the recorder (section `recorder:` of the YAML file)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from tiplog.config import ServiceConfig
+
+MiB = 1024 * 1024
+GiB = 1024 * MiB
+
+
+class RecorderConfig(ServiceConfig):
+    """Where and how the recorder writes. Sizes in bytes, periods in seconds."""
+
+    out_dir: str = "recordings"
+    # never: only on command; device: when device/status reports STREAMING; always: at launch.
+    autostart: Literal["never", "device", "always"] = "device"
+    # Key expression under the bus prefix that is recorded.
+    key_expr: str = "**"
+    # lz4 by default: camera frames are noise-like and dominate the volume; zstd costs several
+    # times the CPU for little gain on them (see benchmarks/recorder_throughput.py).
+    compression: Literal["zstd", "lz4", "none"] = "lz4"
+    chunk_size_bytes: int = Field(4 * MiB, ge=64 * 1024, le=256 * MiB)
+    # A chunk is closed and flushed to the OS at least this often: kill -9 loses at most this.
+    flush_period_s: float = Field(0.5, gt=0.0, le=1.0)
+    # fsync the file this often against power loss (0: never, the OS decides).
+    fsync_period_s: float = Field(2.0, ge=0.0, le=3600.0)
+    # Split into a new file when the current one reaches either limit (0: no limit).
+    max_file_bytes: int = Field(4 * GiB, ge=0)
+    max_file_duration_s: float = Field(900.0, ge=0.0)
+    # Refuse to start, and stop, when free space on the target falls below this.
+    min_free_bytes: int = Field(2 * GiB, ge=0)
+    disk_check_period_s: float = Field(1.0, gt=0.0, le=60.0)
+    # Bound on what waits for the writer thread; beyond it messages are dropped and counted.
+    max_queue_bytes: int = Field(512 * MiB, ge=1 * MiB)
+    max_queue_messages: int = Field(200_000, ge=100)
+    # Recorded as an attachment and metadata in every file when given.
+    calibration_file: str | None = None
+    # Session name prefix; a session is `<prefix><UTC start time>` unless named on START.
+    session_prefix: str = "tiplog_"

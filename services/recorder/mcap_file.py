@@ -1,0 +1,135 @@
+"""One recording file: an McapWriter over a stream that reports every failed write, and a
+salvage path that leaves the file valid when the disk fills or the directory goes away.
+
+The McapWriter is flushed (chunk closed, bytes handed to the OS) every `flush_period_s`; the
+offset after each successful flush is a point where the file is a valid MCAP data section.
+A write that fails (ENOSPC, EIO, an unplugged disk) leaves a partial record after that
+point: `salvage()` truncates the file back to it and ends it with DataEnd + Footer + magic,
+so every reader opens it (without summary; `tiplog record recover` rebuilds the indexes).
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+from mcap.data_stream import RecordBuilder
+from mcap.records import DataEnd, Footer
+
+from tiplog.mcap_io import McapWriter
+
+log = logging.getLogger(__name__)
+MAGIC = b"\x89MCAP0\r\n"
+
+# Opens a file for writing in binary mode; the seam tests use to inject a full disk.
+Opener = Callable[[Path], IO[bytes]]
+
+
+def open_file(path: Path) -> IO[bytes]:
+    return open(path, "wb", buffering=0)  # noqa: SIM115  (closed by RecordingFile)
+
+
+class _CheckedStream:
+    """Write-all wrapper: a short write becomes an OSError instead of a silent gap."""
+
+    def __init__(self, raw: IO[bytes]):
+        self.raw = raw
+        self.position = 0
+
+    def write(self, data: bytes | memoryview) -> int:
+        mv = memoryview(data)
+        total = len(mv)
+        while len(mv):
+            n = self.raw.write(mv)
+            if not n:
+                raise OSError(errno.ENOSPC, "short write (disk full?)")
+            mv = mv[n:]
+        self.position += total
+        return total
+
+    def tell(self) -> int:
+        return self.position
+
+    def flush(self) -> None:
+        self.raw.flush()
+
+    def fsync(self) -> None:
+        os.fsync(self.raw.fileno())
+
+
+class RecordingFile:
+    """An open MCAP file of the recorder; all calls from the writer thread only."""
+
+    def __init__(self, path: Path, *, compression: str, chunk_size: int, opener: Opener = open_file):
+        self.path = path
+        self._raw = opener(path)
+        self._stream = _CheckedStream(self._raw)
+        self.writer = McapWriter(self._stream, compression=compression, chunk_size=chunk_size)  # type: ignore[arg-type]
+        self.good_offset = 0  # end of the last complete flush
+        self.written_by_topic: dict[str, int] = {}
+        self.first_log_ns: int | None = None
+        self.last_log_ns: int | None = None
+        self.closed = False
+
+    @property
+    def bytes_written(self) -> int:
+        return self._stream.position
+
+    def write(self, topic: str, type_name: str, payload: bytes, log_ns: int, publish_ns: int, sequence: int) -> None:
+        self.writer.write_raw(topic, type_name, payload, log_ns, publish_ns, sequence)
+        self.written_by_topic[topic] = self.written_by_topic.get(topic, 0) + 1
+        if self.first_log_ns is None:
+            self.first_log_ns = log_ns
+        self.last_log_ns = log_ns
+
+    def add_metadata(self, name: str, data: dict[str, Any]) -> None:
+        self.writer.add_metadata(name, data)
+
+    def add_attachment(self, name: str, data: bytes, media_type: str, log_ns: int) -> None:
+        self.writer.add_attachment(name, data, media_type, log_ns)
+
+    def flush(self) -> None:
+        self.writer.flush()
+        self.good_offset = self._stream.position
+
+    def fsync(self) -> None:
+        self._stream.fsync()
+
+    def close(self) -> None:
+        """Finish the file (summary, indexes, statistics) and close it."""
+        if self.closed:
+            return
+        self.writer.close()
+        self._stream.flush()
+        self.closed = True
+        self._raw.close()
+
+    def salvage(self) -> bool:
+        """After a failed write: cut back to the last complete flush and end the file there.
+        True when the file ends validly (readable by every reader, without summary)."""
+        if self.closed:
+            return True
+        self.closed = True
+        ok = False
+        try:
+            self._raw.truncate(self.good_offset)
+            self._raw.seek(self.good_offset)
+            rb = RecordBuilder()
+            DataEnd(0).write(rb)
+            Footer(0, 0, 0).write(rb)
+            tail = rb.end() + MAGIC
+            self._stream.position = self.good_offset
+            self._stream.write(tail)
+            self._raw.flush()
+            ok = True
+        except OSError as e:
+            log.error("could not end %s after a write failure (%s); `tiplog record recover` reads it", self.path, e)
+        try:
+            self._raw.close()
+        except OSError as e:
+            log.error("closing %s failed: %s", self.path, e)
+        return ok

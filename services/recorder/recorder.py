@@ -1,0 +1,508 @@
+"""The recorder's core: a bounded queue filled on Zenoh's threads, one writer thread that owns
+every file operation, sessions split by size and duration, per-topic counts, disk alarms.
+
+Times: `log_time` is the receive time on this host's clock (`tiplog.clock.now_ns`,
+CLOCK_MONOTONIC), `publish_time` the publisher's stamp at put, `sequence` the publisher's bus
+sequence number (low 32 bits). Receive time rather than the header stamp because every
+message has one (foreign and header-less types too), it never runs backwards within a file,
+so chunks stay in time order, and it is the moment the data existed on this host, which is
+what a replay reproduces; the sample's own capture stamp stays inside the payload. The wall
+clock at the session start is in the `session` metadata to place the file in calendar time.
+
+Commands (start/stop/split/mark/status) run on the writer thread too, so a file is never
+touched from two threads; the caller waits for the reply.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import queue
+import shutil
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from services.recorder.config import RecorderConfig
+from services.recorder.mcap_file import Opener, RecordingFile, open_file
+from tiplog import __version__
+from tiplog.bus import SampleInfo
+from tiplog.clock import NS_PER_S, now_ns, wall_ns
+from tiplog.config import dump
+from tiplog.v1 import device_pb2, recorder_pb2
+
+log = logging.getLogger(__name__)
+
+S = recorder_pb2.RecorderState
+A = recorder_pb2.RecorderAction
+STATUS_TOPIC = "recorder/status"
+DiskUsage = Callable[[str], Any]  # shutil.disk_usage's signature: .free in bytes
+
+
+@dataclass
+class _Counts:
+    received: int = 0
+    written: int = 0
+    dropped: int = 0
+    upstream_gaps: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return {
+            "received": self.received,
+            "written": self.written,
+            "dropped": self.dropped,
+            "upstream_gaps": self.upstream_gaps,
+        }
+
+
+@dataclass
+class _Command:
+    cmd: recorder_pb2.RecorderCommand
+    done: threading.Event = field(default_factory=threading.Event)
+    reply: recorder_pb2.RecorderReply | None = None
+
+
+_STOP = object()
+
+
+class Recorder:
+    """Records whatever `on_sample` is given while a session runs.
+
+    `opener` and `disk_usage` are seams for tests (a full disk, a shrinking free space);
+    `on_status` is called with a RecorderStatus on every state change."""
+
+    def __init__(
+        self,
+        config: RecorderConfig,
+        *,
+        opener: Opener = open_file,
+        disk_usage: DiskUsage = shutil.disk_usage,
+        on_status: Callable[[recorder_pb2.RecorderStatus], None] | None = None,
+        extra_metadata: dict[str, dict[str, Any]] | None = None,
+    ):
+        self.config = config
+        self.out_dir = Path(config.out_dir)
+        self._opener = opener
+        self._disk_usage = disk_usage
+        self._on_status = on_status
+        self._extra_metadata = extra_metadata or {}
+        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._lock = threading.Lock()  # counts, queue bounds, state fields read by status()
+        self._queued_bytes = 0
+        self._queued_msgs = 0
+        self._counts: dict[str, _Counts] = collections.defaultdict(_Counts)
+        self._last_seq: dict[tuple[str, int], int] = {}
+        self._recording = False  # read on Zenoh's threads without the lock (a bool is atomic)
+        self.state = S.RECORDER_STATE_IDLE
+        self.alarm = ""
+        self.session = ""
+        self.file_index = 0
+        self._file: RecordingFile | None = None
+        self._session_start_ns = 0
+        self._file_start_ns = 0
+        self._bytes_before = 0  # bytes of the session's earlier files
+        self._free_bytes = 0
+        self._events = 0
+        self._start_reason = ""
+        self._device: device_pb2.DeviceStatus | None = None
+        self._device_written = False
+        self._auto_armed = True
+        self._thread = threading.Thread(target=self._run, name="recorder-writer", daemon=True)
+
+    # ---------------------------------------------------------------- Zenoh's threads
+    def on_sample(self, payload: bytes, info: SampleInfo) -> None:
+        """Bus callback: count, check sequence, enqueue. No disk work here."""
+        if info.topic == "device/status":
+            self._on_device_status(payload)
+        if not self._recording:
+            return
+        n = len(payload)
+        with self._lock:
+            c = self._counts[info.topic]
+            c.received += 1
+            if info.type_name:
+                k = (info.topic, info.publisher_id)
+                last = self._last_seq.get(k)
+                if last is not None and info.seq > last + 1:
+                    c.upstream_gaps += info.seq - last - 1
+                self._last_seq[k] = info.seq if last is None else max(last, info.seq)
+            if (
+                self._queued_bytes + n > self.config.max_queue_bytes
+                or self._queued_msgs >= self.config.max_queue_messages
+            ):
+                c.dropped += 1
+                return
+            self._queued_bytes += n
+            self._queued_msgs += 1
+        self._q.put((payload, info))
+
+    def _on_device_status(self, payload: bytes) -> None:
+        try:
+            st = device_pb2.DeviceStatus.FromString(payload)
+        except Exception:  # counted by the writer as any other message; nothing to act on
+            return
+        self._device = st
+        streaming = st.state == device_pb2.DEVICE_STATE_STREAMING
+        if not streaming:
+            self._auto_armed = True
+        elif self.config.autostart == "device" and self._auto_armed and not self._recording:
+            self._auto_armed = False
+            cmd = recorder_pb2.RecorderCommand(action=A.RECORDER_ACTION_START, reason="device streaming")
+            self._q.put(_Command(cmd))  # no wait: this is Zenoh's thread
+
+    # ---------------------------------------------------------------- public API
+    def start_thread(self) -> None:
+        self._free_bytes = self._free()
+        self._thread.start()
+        if self.config.autostart == "always":
+            self._q.put(_Command(recorder_pb2.RecorderCommand(action=A.RECORDER_ACTION_START, reason="autostart")))
+
+    def command(self, cmd: recorder_pb2.RecorderCommand, timeout_s: float = 10.0) -> recorder_pb2.RecorderReply:
+        """Run a command on the writer thread and return its reply."""
+        if cmd.action == A.RECORDER_ACTION_STATUS:
+            return recorder_pb2.RecorderReply(ok=True, message="status", status=self.status())
+        c = _Command(cmd)
+        self._q.put(c)
+        if not c.done.wait(timeout_s) or c.reply is None:
+            return recorder_pb2.RecorderReply(ok=False, message="recorder busy: no reply in time", status=self.status())
+        return c.reply
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Stop the session (file finished) and the writer thread."""
+        if self._thread.is_alive():
+            self._q.put(_STOP)
+            self._thread.join(timeout_s)
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        with self._lock:
+            return {t: c.as_dict() for t, c in sorted(self._counts.items())}
+
+    def status(self) -> recorder_pb2.RecorderStatus:
+        st = recorder_pb2.RecorderStatus(
+            state=self.state, alarm=self.alarm, session=self.session, file_index=self.file_index
+        )
+        st.header.stamp_ns = now_ns()
+        f = self._file
+        if f is not None:
+            st.path = str(f.path)
+            st.bytes_written = self._bytes_before + f.bytes_written
+        else:
+            st.bytes_written = self._bytes_before
+        st.free_bytes = max(0, self._free_bytes)
+        if self._session_start_ns and self._recording:
+            st.duration_s = (now_ns() - self._session_start_ns) / NS_PER_S
+        for topic, c in self.counts().items():
+            st.topics[topic].CopyFrom(recorder_pb2.TopicCounts(**c))
+        return st
+
+    # ---------------------------------------------------------------- writer thread
+    def _run(self) -> None:
+        cfg = self.config
+        next_flush = next_fsync = next_disk = time.monotonic()
+        while True:
+            now = time.monotonic()
+            if self._file is not None:
+                if now >= next_flush:
+                    self._guard(self._file.flush)
+                    next_flush = now + cfg.flush_period_s
+                if self._file is not None and cfg.fsync_period_s and now >= next_fsync:
+                    self._guard(self._file.fsync)
+                    next_fsync = now + cfg.fsync_period_s
+                if self._file is not None and now >= next_disk:
+                    self._check_disk()
+                    next_disk = now + cfg.disk_check_period_s
+                if self._file is not None:
+                    self._check_split()
+            elif now >= next_disk:
+                self._free_bytes = self._free()
+                next_disk = now + cfg.disk_check_period_s
+            timeout = max(0.0, min(next_flush, next_disk) - time.monotonic()) if self._file else cfg.disk_check_period_s
+            try:
+                item = self._q.get(timeout=min(timeout, 0.25))
+            except queue.Empty:
+                continue
+            if item is _STOP:
+                if self._file is not None:
+                    self._end_file("recorder shut down")
+                self._set_idle()
+                return
+            if isinstance(item, _Command):
+                try:
+                    item.reply = self._execute(item.cmd)
+                except Exception as e:  # a bug must not leave the caller waiting
+                    log.exception("command %s failed", item.cmd.action)
+                    item.reply = recorder_pb2.RecorderReply(ok=False, message=f"internal error: {e}")
+                item.done.set()
+                continue
+            try:
+                self._write(*item)
+            except Exception:  # a bug on one message must not stop the recording
+                log.exception("writing a message of %s failed", item[1].topic)
+
+    def _write(self, payload: bytes, info: SampleInfo) -> None:
+        with self._lock:
+            self._queued_bytes -= len(payload)
+            self._queued_msgs -= 1
+        f = self._file
+        if f is None:
+            with self._lock:  # arrived while a stop or a fault was on its way
+                c = self._counts[info.topic]
+                if self.state == S.RECORDER_STATE_ERROR:
+                    c.dropped += 1
+                else:
+                    c.received -= 1
+            return
+        try:
+            f.write(info.topic, info.type_name, payload, info.receive_ns, info.publish_ns, info.seq)
+        except OSError as e:
+            with self._lock:
+                self._counts[info.topic].dropped += 1
+            self._fault(f"write failed: {e}")
+            return
+        except (KeyError, ValueError) as e:  # unknown schema or a type change on a topic
+            with self._lock:
+                self._counts[info.topic].dropped += 1
+            log.warning("cannot record %s: %s", info.topic, e)
+            return
+        with self._lock:
+            self._counts[info.topic].written += 1
+
+    def _guard(self, fn: Callable[[], None]) -> None:
+        try:
+            fn()
+        except OSError as e:
+            self._fault(f"write failed: {e}")
+
+    def _free(self) -> int:
+        try:
+            target = self.out_dir if self.out_dir.exists() else self.out_dir.parent
+            return int(self._disk_usage(str(target)).free)
+        except OSError as e:
+            log.warning("free space of %s unknown: %s", self.out_dir, e)
+            return -1
+
+    def _check_disk(self) -> None:
+        self._free_bytes = free = self._free()
+        if 0 <= free < self.config.min_free_bytes:
+            self._fault(
+                f"free space {free / 2**20:.0f} MiB below the reserve of {self.config.min_free_bytes / 2**20:.0f} MiB"
+            )
+
+    def _check_split(self) -> None:
+        f, cfg = self._file, self.config
+        if f is None:
+            return
+        too_big = cfg.max_file_bytes and f.bytes_written >= cfg.max_file_bytes
+        too_long = cfg.max_file_duration_s and now_ns() - self._file_start_ns >= cfg.max_file_duration_s * NS_PER_S
+        if too_big or too_long:
+            self._split("size limit" if too_big else "duration limit")
+
+    # ---------------------------------------------------------------- commands
+    def _execute(self, cmd: recorder_pb2.RecorderCommand) -> recorder_pb2.RecorderReply:
+        a = cmd.action
+        if a == A.RECORDER_ACTION_START:
+            ok, msg = self._start(cmd.reason or "command", cmd.session)
+        elif a == A.RECORDER_ACTION_STOP:
+            self._auto_armed = False  # the operator stopped: no restart until the device reconnects
+            if self._file is None:
+                ok, msg = False, "not recording"
+            else:
+                path = self._end_file(cmd.reason or "stop command")
+                self._set_idle()
+                ok, msg = True, f"stopped; {path}"
+        elif a == A.RECORDER_ACTION_SPLIT:
+            ok, msg = (False, "not recording") if self._file is None else self._split(cmd.reason or "split command")
+        elif a == A.RECORDER_ACTION_MARK:
+            ok, msg = self._mark(cmd.reason)
+        elif a == A.RECORDER_ACTION_STATUS:
+            ok, msg = True, "status"
+        else:
+            ok, msg = False, f"unknown action {a}"
+        return recorder_pb2.RecorderReply(ok=ok, message=msg, status=self.status())
+
+    def _start(self, reason: str, name: str) -> tuple[bool, str]:
+        if self._file is not None:
+            return False, f"already recording to {self._file.path}"
+        self._free_bytes = free = self._free()
+        if 0 <= free < self.config.min_free_bytes:
+            self._alarm_error(f"not started: free space {free / 2**20:.0f} MiB below the reserve")
+            return False, self.alarm
+        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
+        self.session = safe or self.config.session_prefix + time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        with self._lock:
+            self._counts.clear()
+            self._last_seq.clear()
+        self.file_index = 0
+        self._bytes_before = 0
+        self._events = 0
+        self._session_start_ns = now_ns()
+        self._start_reason = reason
+        if not self._open_file():
+            return False, self.alarm
+        self.alarm = ""
+        log.info("recording session %s (%s) to %s", self.session, reason, self._file.path if self._file else "?")
+        return True, f"recording to {self._file.path if self._file else '?'}"
+
+    def _open_file(self) -> bool:
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            path = self.out_dir / f"{self.session}_{self.file_index:03d}.mcap"
+            f = RecordingFile(
+                path, compression=self.config.compression, chunk_size=self.config.chunk_size_bytes, opener=self._opener
+            )
+        except OSError as e:
+            self._alarm_error(f"cannot open a file in {self.out_dir}: {e}")
+            return False
+        self._file = f
+        self._file_start_ns = now_ns()
+        self._device_written = False
+        try:
+            self._write_header_metadata(f)
+            f.flush()
+        except OSError as e:
+            self._fault(f"write failed: {e}")
+            return False
+        self._recording = True
+        self.state = S.RECORDER_STATE_RECORDING
+        self._notify()
+        return True
+
+    def _write_header_metadata(self, f: RecordingFile) -> None:
+        cfg = self.config
+        f.add_metadata(
+            "session",
+            {
+                "session": self.session,
+                "file_index": self.file_index,
+                "start_reason": self._start_reason,
+                "software_version": __version__,
+                "host": socket.gethostname(),
+                "wall_start_ns": wall_ns(),
+                "clock_start_ns": now_ns(),
+                "log_time": "receive time on the recording host, CLOCK_MONOTONIC ns",
+                "publish_time": "publisher's CLOCK_MONOTONIC ns at put",
+                "sequence": "publisher's bus sequence number (low 32 bits)",
+            },
+        )
+        f.add_metadata("configuration", {"recorder": dump(cfg)})
+        for name, data in self._extra_metadata.items():
+            f.add_metadata(name, data)
+        if cfg.calibration_file:
+            p = Path(cfg.calibration_file)
+            try:
+                data = p.read_bytes()
+                f.add_attachment(
+                    p.name,
+                    data,
+                    "application/yaml" if p.suffix in (".yaml", ".yml") else "application/octet-stream",
+                    now_ns(),
+                )
+                f.add_metadata("calibration", {"file": str(p), "size": len(data)})
+            except OSError as e:
+                log.warning("calibration file %s unreadable: %s", p, e)
+                f.add_metadata("calibration", {"file": str(p), "error": str(e)})
+        self._write_device(f)
+
+    def _write_device(self, f: RecordingFile) -> None:
+        d = self._device
+        if d is None or self._device_written:
+            return
+        f.add_metadata(
+            "device",
+            {
+                "firmware": d.firmware,
+                "device_id": d.device_id,
+                "port": d.port,
+                "protocol_version": d.protocol_version,
+                "nominal_rates_hz": dict(d.nominal_rates_hz),
+            },
+        )
+        self._device_written = True
+
+    def _end_file(self, reason: str) -> str:
+        """Write the closing metadata and finish the file; salvage it when that fails."""
+        f = self._file
+        self._file = None
+        if f is None:
+            return ""
+        self._bytes_before += f.bytes_written
+        try:
+            self._write_device(f)
+            f.add_metadata("recorder_counts", self.counts())
+            f.add_metadata(
+                "recorder_end",
+                {
+                    "reason": reason,
+                    "wall_end_ns": wall_ns(),
+                    "file_written": f.written_by_topic,
+                    "events": self._events,
+                },
+            )
+            f.close()
+        except OSError as e:
+            log.error("finishing %s failed: %s", f.path, e)
+            f.salvage()
+        log.info("closed %s (%s)", f.path, reason)
+        return str(f.path)
+
+    def _split(self, reason: str) -> tuple[bool, str]:
+        old = self._end_file(reason)
+        self.file_index += 1
+        if not self._open_file():
+            return False, self.alarm
+        return True, f"split: {old} -> {self._file.path if self._file else '?'}"
+
+    def _mark(self, label: str) -> tuple[bool, str]:
+        f = self._file
+        if f is None:
+            return False, "not recording"
+        self._events += 1
+        t = now_ns()
+        try:
+            f.add_metadata(f"event_{self._events:04d}", {"label": label, "log_time_ns": t, "wall_ns": wall_ns()})
+        except OSError as e:
+            self._fault(f"write failed: {e}")
+            return False, self.alarm
+        return True, f"event {self._events} marked at {t} ns"
+
+    # ---------------------------------------------------------------- state
+    def _fault(self, alarm: str) -> None:
+        """Stop writing, keep the file valid, raise the alarm; the process stays up."""
+        f = self._file
+        self._recording = False
+        self._file = None
+        if f is not None:
+            self._bytes_before += f.bytes_written
+            if alarm.startswith("write failed"):
+                f.salvage()
+            else:  # the reserve tripped: the disk still takes the summary
+                try:
+                    f.add_metadata("recorder_counts", self.counts())
+                    f.add_metadata("recorder_end", {"reason": alarm, "wall_end_ns": wall_ns()})
+                    f.close()
+                except OSError:
+                    f.salvage()
+        self._alarm_error(alarm)
+
+    def _alarm_error(self, alarm: str) -> None:
+        self.alarm = alarm
+        self.state = S.RECORDER_STATE_ERROR
+        log.error("recorder alarm: %s", alarm)
+        self._notify()
+
+    def _set_idle(self) -> None:
+        self._recording = False
+        if self.state != S.RECORDER_STATE_ERROR:
+            self.state = S.RECORDER_STATE_IDLE
+        self._notify()
+
+    def _notify(self) -> None:
+        if self._on_status is not None:
+            try:
+                self._on_status(self.status())
+            except Exception:
+                log.exception("status callback raised")
