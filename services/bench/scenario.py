@@ -25,6 +25,14 @@ except ImportError:  # pragma: no cover - until motion.py lands
         model_config = ConfigDict(extra="allow")
 
 
+try:  # the render helper's pixel-tier parameters (services/bench/render.py)
+    from services.bench.render import RenderParams
+except ImportError:  # pragma: no cover - without OpenCV or before render.py lands
+
+    class RenderParams(BaseModel):  # type: ignore[no-redef]
+        model_config = ConfigDict(extra="allow")
+
+
 F = Field
 Vec3 = tuple[float, float, float]
 Vec2 = tuple[float, float]
@@ -212,6 +220,7 @@ class Scenario(_M):
     vision: VisionConfig = F(default_factory=VisionConfig)
     calibration: CalibrationErrorConfig = F(default_factory=CalibrationErrorConfig)
     output: OutputConfig = F(default_factory=OutputConfig)
+    render: RenderParams = F(default_factory=RenderParams, description="pixel tier only")
 
 
 # name -> overrides of the defaults
