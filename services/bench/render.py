@@ -1,0 +1,263 @@
+"""Pixel-tier renderer of the bench camera: a dark instrument shaft with metallic jaws over a
+textured tissue phantom, as the RealSense D405 colour stream would see it (RGB uint8).
+
+Geometry is exact: the shaft's long silhouette edges are drawn with analytic coverage
+clip(0.5 + d, 0, 1) of the signed pixel distance d to the tangent lines (the images of the
+planes through the camera centre tangent to the shaft cylinder), so the 50 % level and the
+gradient maximum of every edge lie on the analytic line before blur and noise; the jaws and the
+junction are 4x4 supersampled. Pipeline per frame, all in float32:
+  precomputed lit floor -> shaft band, jaws -> occluder (blob or second instrument, by chance)
+  -> smoke (by chance) -> Gaussian defocus -> vignetting x locked exposure -> shot + read noise
+  -> uint8.
+Lens distortion is exact rather than resampled: the frame is drawn on the distorted pixel grid
+and each pixel's geometry is evaluated at its exact undistorted coordinates (precomputed rays).
+The floor, its texture, the per-pixel rays and the gain maps are built once per (camera, scene
+fields) and cached, so a frame costs only the instrument and the image-wide filters.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from typing import Annotated
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from services.bench.render_geometry import InstrumentGeometry, silhouette_lines
+from services.bench.render_instrument import (
+    Material,
+    draw_blob,
+    draw_cylinder_band,
+    draw_jaws_region,
+    instrument_masks,
+    random_second_instrument,
+)
+from services.bench.render_scene import Scene
+from tiplog.camera_model import CameraModel
+
+Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+RGB = tuple[Unit, Unit, Unit]
+
+# fields that change the precomputed scene (floor, texture, gain); the others act per frame
+SCENE_FIELDS = (
+    "floor_normal_cam", "floor_distance_m", "floor_colour", "texture_seed", "texture_strength",
+    "light_pos_cam_m", "ambient", "vignetting", "exposure", "read_noise_dn", "electrons_per_dn",
+)  # fmt: skip
+
+
+class RenderParams(BaseModel):
+    """Scene, instrument, optics and sensor of the pixel renderer (SI units unless named)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # instrument
+    shaft_radius_m: float = Field(0.00259, gt=0.0005, le=0.01)
+    shaft_length_m: float = Field(
+        0.45, gt=0.02, le=2.0, description="shaft proximal of the junction (to the trocar and beyond)"
+    )
+    junction_from_tip_mm: float = Field(
+        12.0, ge=2.0, le=40.0, description="shaft end / jaws start, proximal of the tip"
+    )
+    jaw_radius_m: float = Field(0.0017, gt=0.0002, le=0.01)
+    shaft_albedo: RGB = (0.045, 0.045, 0.05)
+    shaft_specular: float = Field(0.35, ge=0.0, le=2.0)
+    shaft_shininess: float = Field(40.0, ge=1.0, le=2000.0)
+    jaw_albedo: RGB = (0.38, 0.39, 0.41)
+    jaw_specular: float = Field(0.9, ge=0.0, le=2.0)
+    jaw_shininess: float = Field(18.0, ge=1.0, le=2000.0)
+    # phantom floor: plane n . X + floor_distance_m = 0 in the camera frame, n toward the camera
+    floor_normal_cam: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    floor_distance_m: float = Field(0.32, gt=0.02, le=5.0)
+    floor_colour: RGB = (0.80, 0.46, 0.43)
+    texture_seed: int = Field(0, ge=0)
+    texture_strength: Unit = 1.0
+    # light (a point lamp near the camera) and optics
+    light_pos_cam_m: tuple[float, float, float] = (0.04, -0.08, 0.0)
+    ambient: Unit = 0.3
+    blur_sigma_px: float = Field(0.8, ge=0.0, le=4.0, description="global defocus, Gaussian sigma")
+    vignetting: Unit = 0.35
+    # sensor: exposure is locked (a fixed gain, no auto exposure)
+    exposure: float = Field(1.0, gt=0.0, le=8.0)
+    sensor_noise: bool = True
+    read_noise_dn: float = Field(1.2, ge=0.0, le=50.0)
+    electrons_per_dn: float = Field(8.0, ge=0.1, le=1e4, description="shot noise: variance = signal_dn / this")
+    # chance events, drawn per frame from the caller's generator
+    smoke_probability: Unit = 0.05
+    smoke_density: Unit = 0.45
+    occlusion_probability: Unit = 0.05
+
+    @model_validator(mode="after")
+    def _check(self) -> RenderParams:
+        if self.jaw_radius_m >= self.shaft_radius_m:
+            raise ValueError(
+                f"jaw_radius_m ({self.jaw_radius_m}) must be smaller than shaft_radius_m ({self.shaft_radius_m})"
+            )
+        if self.jaw_radius_m * 1e3 >= self.junction_from_tip_mm:
+            raise ValueError("junction_from_tip_mm must exceed the jaw radius")
+        n = np.asarray(self.floor_normal_cam, float)
+        if not np.all(np.isfinite(n)) or np.linalg.norm(n) < 1e-9:
+            raise ValueError(f"floor_normal_cam must be a non-zero vector (got {self.floor_normal_cam})")
+        if n[2] >= 0:
+            raise ValueError(f"floor_normal_cam must face the camera (negative z), got {self.floor_normal_cam}")
+        if not all(np.isfinite(self.light_pos_cam_m)):
+            raise ValueError("light_pos_cam_m must be finite")
+        return self
+
+
+_SCENES: OrderedDict = OrderedDict()
+_SCENES_LOCK = threading.Lock()
+_SCENES_MAX = 4
+
+
+def get_scene(camera: CameraModel, params: RenderParams) -> Scene:
+    """The precomputed scene for this camera and these scene fields (built on first use, cached)."""
+    key = (camera, tuple(getattr(params, f) for f in SCENE_FIELDS))
+    with _SCENES_LOCK:
+        scene = _SCENES.get(key)
+        if scene is not None:
+            _SCENES.move_to_end(key)
+            return scene
+    scene = Scene(camera, params)
+    with _SCENES_LOCK:
+        _SCENES[key] = scene
+        while len(_SCENES) > _SCENES_MAX:
+            _SCENES.popitem(last=False)
+    return scene
+
+
+def render_frame(
+    camera: CameraModel,
+    T_camera_tool: np.ndarray,
+    params: RenderParams,
+    rng: np.random.Generator,
+    truth_out: dict | None = None,
+) -> np.ndarray:
+    """One colour frame (H, W, 3) uint8 RGB of the instrument at T_camera_tool (4x4; tool origin at
+    the tip, z along the shaft, distal). With `truth_out`, fills it with the exact geometry:
+      line_left, line_right: (3,) lines a*u + b*v + c = 0 in undistorted pixels, (a, b) unit, positive
+        inside the shaft; n_left_cam, n_right_cam: the tangent-plane normals (camera frame);
+      junction_px, tip_px: (2,) undistorted pixels of the axis points at the junction and the tip
+        (junction_px_distorted, tip_px_distorted: the same in image pixels; NaN behind the camera);
+      p_tip_cam_m, p_junction_cam_m, axis_cam: (3,) camera frame;
+      mask: (H, W) bool, image pixels whose centre ray first meets the shaft (proximal of the junction);
+      jaws_mask: (H, W) bool, the same for the jaws; occluder_mask: (H, W) bool, pixels covered >= 50 %
+        by the occluder (in front of the instrument); occlusion: "none" | "blob" | "instrument";
+      smoke: bool."""
+    scene = get_scene(camera, params)
+    geom = InstrumentGeometry.from_pose(
+        T_camera_tool,
+        params.shaft_radius_m,
+        params.jaw_radius_m,
+        params.junction_from_tip_mm * 1e-3,
+        params.shaft_length_m,
+    )
+    line_l, line_r, n_l, n_r = silhouette_lines(geom, camera)
+    light = np.asarray(params.light_pos_cam_m, float)
+    shaft_mat = Material(np.asarray(params.shaft_albedo), params.shaft_specular, params.shaft_shininess)
+    jaw_mat = Material(np.asarray(params.jaw_albedo), params.jaw_specular, params.jaw_shininess)
+
+    canvas = scene.floor_dn.copy()
+    draw_cylinder_band(
+        canvas,
+        scene,
+        geom.p_tip_cam_m,
+        geom.axis_cam,
+        geom.shaft_radius_m,
+        geom.s_proximal,
+        geom.s_junction,
+        (line_l, line_r),
+        shaft_mat,
+        light,
+        params.ambient,
+    )
+    draw_jaws_region(
+        canvas, scene, geom, np.asarray(T_camera_tool, float)[:3, 1], shaft_mat, jaw_mat, light, params.ambient
+    )
+
+    occlusion, occ_cov = "none", None
+    if rng.random() < params.occlusion_probability:
+        occ_cov = np.zeros(canvas.shape[:2], np.float32)
+        if rng.random() < 0.5:
+            occlusion = "blob"
+            draw_blob(canvas, occ_cov, scene, geom, rng)
+        else:
+            occlusion = "instrument"
+            other = random_second_instrument(scene, geom, rng)
+            if other is not None:
+                g2, lines2 = other
+                mat2 = Material(np.full(3, rng.uniform(0.05, 0.25)), 0.6, 40.0)
+                draw_cylinder_band(
+                    canvas,
+                    scene,
+                    g2.p_tip_cam_m,
+                    g2.axis_cam,
+                    g2.shaft_radius_m,
+                    g2.s_proximal,
+                    0.0,
+                    lines2,
+                    mat2,
+                    light,
+                    params.ambient,
+                    coverage_out=occ_cov,
+                )
+    smoke = bool(rng.random() < params.smoke_probability)
+    if smoke:
+        _add_smoke(canvas, scene, rng, params.smoke_density)
+
+    if params.blur_sigma_px > 0:
+        canvas = cv2.GaussianBlur(canvas, (0, 0), params.blur_sigma_px)
+    dn = canvas  # digital numbers >= 0: exposure (locked) and vignetting are folded in by the scene
+    if params.sensor_noise:
+        h, w = camera.height, camera.width
+        draws = np.frombuffer(rng.bytes(h * w * 3), np.uint8).reshape(h, w, 3)
+        z = cv2.LUT(draws, scene.normal_lut)
+        sigma = cv2.LUT(cv2.convertScaleAbs(dn), scene.sigma_lut)
+        cv2.accumulateProduct(sigma, z, dn)
+        dn = cv2.max(dn, 0.0)
+    img = cv2.convertScaleAbs(dn)  # rounds and saturates at 255 (dn >= 0 here)
+
+    if truth_out is not None:
+        _fill_truth(truth_out, scene, camera, geom, line_l, line_r, n_l, n_r, occlusion, occ_cov, smoke)
+    return img
+
+
+def _add_smoke(canvas: np.ndarray, scene: Scene, rng: np.random.Generator, density: float) -> None:
+    """Semi-transparent low-frequency haze over the whole view, in place (canvas in DN)."""
+    h, w = canvas.shape[:2]
+    field = cv2.resize(rng.random((6, 10), dtype=np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
+    alpha = density * np.clip(0.35 + 1.2 * (field - 0.5), 0.0, 1.0)
+    tint = np.float32(rng.uniform(0.75, 0.92))
+    canvas *= (1.0 - alpha)[..., None]
+    canvas += (alpha * tint * scene.gain_dn)[..., None]
+
+
+def _fill_truth(
+    out: dict,
+    scene: Scene,
+    camera: CameraModel,
+    geom: InstrumentGeometry,
+    line_l,
+    line_r,
+    n_l,
+    n_r,
+    occlusion: str,
+    occ_cov,
+    smoke: bool,
+) -> None:
+    p_j = geom.point(geom.s_junction)
+    pts = np.stack([p_j, geom.p_tip_cam_m])
+    und = camera.project(pts, distort=False)
+    dis = camera.project(pts, distort=True)
+    mask, jaws = instrument_masks(scene, geom, line_l, line_r)
+    if occ_cov is not None:
+        occ = occ_cov >= 0.5
+    else:
+        occ = np.zeros((camera.height, camera.width), bool)
+    out.update(
+        line_left=line_l, line_right=line_r, n_left_cam=n_l, n_right_cam=n_r,
+        junction_px=und[0], tip_px=und[1], junction_px_distorted=dis[0], tip_px_distorted=dis[1],
+        p_tip_cam_m=geom.p_tip_cam_m.copy(), p_junction_cam_m=p_j, axis_cam=geom.axis_cam.copy(),
+        mask=mask, jaws_mask=jaws, occluder_mask=occ, occlusion=occlusion, smoke=smoke,
+    )  # fmt: skip

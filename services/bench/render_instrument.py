@@ -1,0 +1,302 @@
+"""Drawing the instrument (and occluders) into the undistorted canvas of a `Scene`.
+
+The long shaft is drawn only inside a band around its silhouette strip (one run of pixels per
+canvas row or column), with analytic edge coverage; the jaws and the junction are cast with
+4x4 supersampling inside their small bounding box.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from services.bench.render_geometry import (
+    PART_END_FACE,
+    PART_JAW_TIP,
+    PART_JAWS,
+    PART_SHAFT,
+    InstrumentGeometry,
+    cast_instrument,
+    cylinder_shading_hits,
+    silhouette_lines,
+)
+from services.bench.render_scene import Scene
+
+Z_NEAR_M = 0.005
+BAND_MARGIN_PX = 2.0
+SUPERSAMPLE = 4
+JAW_GROOVE_M = 0.12e-3
+
+
+@dataclass(frozen=True)
+class Material:
+    albedo: np.ndarray  # (3,) RGB
+    specular: float
+    shininess: float
+
+
+def shade(points, normals, rays, mat: Material, light, ambient: float, albedo=None, axis=None) -> np.ndarray:
+    """Lambert + Blinn-Phong under a point light (camera frame, metres) -> RGB (N, 3) float32. With a
+    cylinder `axis`, the half vector is taken across the axis, as for a lamp elongated along the
+    shaft: the highlight is then a line running along the cylinder wherever the light is."""
+    v = -rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    to_l = light - points
+    to_l /= np.maximum(np.linalg.norm(to_l, axis=1, keepdims=True), 1e-12)
+    ndl = np.clip(np.einsum("ij,ij->i", normals, to_l), 0.0, 1.0)
+    hv = to_l + v
+    if axis is not None:
+        hv -= (hv @ axis)[:, None] * axis
+    hv /= np.maximum(np.linalg.norm(hv, axis=1, keepdims=True), 1e-12)
+    ndh = np.clip(np.einsum("ij,ij->i", normals, hv), 0.0, 1.0)
+    alb = mat.albedo[None, :] if albedo is None else albedo
+    rgb = alb * (ambient + (1.0 - ambient) * ndl)[:, None] + (mat.specular * ndh**mat.shininess)[:, None]
+    return rgb.astype(np.float32)
+
+
+def _axis_px(scene: Scene, p: np.ndarray) -> np.ndarray:
+    """Undistorted pixel of a camera-frame point (z > 0); within scene.max_shift_px of its image pixel."""
+    c = scene.camera
+    return np.array([c.fx * p[0] / p[2] + c.cx, c.fy * p[1] / p[2] + c.cy])
+
+
+def draw_cylinder_band(
+    canvas, scene: Scene, p_axis, d, radius, s_lo, s_hi, lines, mat: Material, light, ambient, coverage_out=None
+) -> None:
+    """Composite the cylinder piece s in [s_lo, s_hi] (axis point p_axis + s d, camera frame) over the
+    canvas in place, edges from `lines` (left, right; undistorted pixels). Optionally max-accumulate
+    its coverage into `coverage_out` (Hc, Wc)."""
+    s_lo_v, s_hi_v = _clip_axis_to_front_raw(p_axis, d, s_lo, s_hi)
+    if s_lo_v >= s_hi_v:
+        return
+    hc, wc = canvas.shape[:2]
+    e0, e1 = p_axis + s_lo_v * d, p_axis + s_hi_v * d
+    q0, q1 = _axis_px(scene, e0), _axis_px(scene, e1)
+    r_px = radius * max(scene.camera.fx, scene.camera.fy) / min(e0[2], e1[2]) + 3.0 + scene.max_shift_px
+    margin = BAND_MARGIN_PX + scene.max_shift_px
+    g = q1 - q0
+    rows = abs(g[1]) >= abs(g[0])
+    major_n, minor_n = (hc, wc) if rows else (wc, hc)
+    k = 1 if rows else 0
+    m0 = max(0, int(np.floor(min(q0[k], q1[k]) - r_px)))
+    m1 = min(major_n - 1, int(np.ceil(max(q0[k], q1[k]) + r_px)))
+    if m0 > m1:
+        return
+    major = np.arange(m0, m1 + 1, dtype=np.float64)
+    lo = np.zeros_like(major)
+    hi = np.full_like(major, minor_n - 1.0)
+    cl = [np.asarray(ln, float) for ln in lines]
+    for a, b, c in cl:
+        a_min, a_maj = (a, b) if rows else (b, a)
+        rhs = -margin - a_maj * major - c
+        if a_min > 1e-9:
+            lo = np.maximum(lo, rhs / a_min)
+        elif a_min < -1e-9:
+            hi = np.minimum(hi, rhs / a_min)
+        else:
+            hi = np.where(rhs > 0, -1.0, hi)
+    lo, hi = np.floor(lo).astype(np.int64), np.ceil(hi).astype(np.int64)
+    width = int((hi - lo + 1).max())
+    if width <= 0:
+        return
+    minor = lo[:, None] + np.arange(width)[None, :]
+    sel = minor <= hi[:, None]
+    minor = minor[sel]
+    major_i = np.broadcast_to(major.astype(np.int64)[:, None], sel.shape)[sel]
+    ii, jj = (major_i, minor) if rows else (minor, major_i)
+    u, v = scene.u_und[ii, jj], scene.v_und[ii, jj]
+    dist = np.minimum(cl[0][0] * u + cl[0][1] * v + cl[0][2], cl[1][0] * u + cl[1][1] * v + cl[1][2])
+    cov = np.clip(0.5 + dist, 0.0, 1.0)
+    keep = cov > 0
+    ii, jj, cov = ii[keep], jj[keep], cov[keep]
+    rays = scene.pixel_rays(ii, jj)
+    p, normal, s = cylinder_shading_hits(rays, p_axis, d, radius)
+    # soft axial ends: metres of axis per pixel at each visible end
+    for s_end, sign in ((s_hi, 1.0), (s_lo, -1.0)):
+        if s_lo_v <= s_end <= s_hi_v:
+            pe = p_axis + s_end * d
+            pe2 = p_axis + (s_end - sign * 1e-3) * d
+            dpx = np.linalg.norm(_axis_px(scene, pe) - _axis_px(scene, pe2))
+            ds = 1e-3 / max(dpx, 1e-6)
+            cov = cov * np.clip(0.5 + sign * (s_end - s) / ds, 0.0, 1.0)
+        else:
+            cov = cov * (sign * (s_end - s) >= 0)
+    keep = cov > 0
+    ii, jj, cov = ii[keep], jj[keep], cov[keep].astype(np.float32)
+    rgb = shade(p[keep], normal[keep], rays[keep], mat, light, ambient, axis=d) * scene.gain_dn[ii, jj][:, None]
+    bg = canvas[ii, jj]
+    canvas[ii, jj] = bg + cov[:, None] * (rgb - bg)
+    if coverage_out is not None:
+        coverage_out[ii, jj] = np.maximum(coverage_out[ii, jj], cov)
+
+
+def _clip_axis_to_front_raw(p_axis, d, s_lo, s_hi):
+    z0, dz = p_axis[2], d[2]
+    if abs(dz) < 1e-12:
+        return (s_lo, s_hi) if z0 >= Z_NEAR_M else (1.0, 0.0)
+    s_z = (Z_NEAR_M - z0) / dz
+    return (max(s_lo, s_z), s_hi) if dz > 0 else (s_lo, min(s_hi, s_z))
+
+
+def draw_jaws_region(
+    canvas, scene: Scene, geom: InstrumentGeometry, y_tool_cam, shaft_mat: Material, jaw_mat: Material, light, ambient
+) -> None:
+    """Cast the junction and the jaws in their bounding box, in place: one ray per pixel, and
+    SUPERSAMPLE^2 rays in pixels where the hit part changes next door. The box's background is the
+    floor, so it replaces whatever the band drew there."""
+    r = geom.shaft_radius_m
+    s_vals = np.array([geom.s_junction - 2 * r, geom.s_junction, -geom.jaw_radius_m, 0.0])
+    d = geom.axis_cam
+    e1 = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(d, e1)
+    ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    ring = r * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
+    pts = (geom.point(s_vals)[:, None, :] + ring[None]).reshape(-1, 3)
+    pts = pts[pts[:, 2] >= Z_NEAR_M]
+    if len(pts) == 0:
+        return
+    px = scene.camera.project(pts, distort=scene.distorted)
+    hc, wc = canvas.shape[:2]
+    j0, j1 = max(0, int(np.floor(px[:, 0].min())) - 2), min(wc - 1, int(np.ceil(px[:, 0].max())) + 2)
+    i0, i1 = max(0, int(np.floor(px[:, 1].min())) - 2), min(hc - 1, int(np.ceil(px[:, 1].max())) + 2)
+    if j0 > j1 or i0 > i1:
+        return
+    bh, bw = i1 - i0 + 1, j1 - j0 + 1
+    ii, jj = np.mgrid[i0 : i1 + 1, j0 : j1 + 1]
+    ii, jj = ii.reshape(-1), jj.reshape(-1)
+    bg = scene.floor_dn[ii, jj]
+    gain = scene.gain_dn[ii, jj]
+    rgb, label = _cast_and_shade(
+        scene.pixel_rays(ii, jj), bg, gain, geom, y_tool_cam, shaft_mat, jaw_mat, light, ambient
+    )
+    lab = label.reshape(bh, bw)
+    edge = np.zeros((bh, bw), bool)
+    edge[1:] |= lab[1:] != lab[:-1]
+    edge[:-1] |= lab[1:] != lab[:-1]
+    edge[:, 1:] |= lab[:, 1:] != lab[:, :-1]
+    edge[:, :-1] |= lab[:, 1:] != lab[:, :-1]
+    e = np.flatnonzero(edge.reshape(-1))
+    if len(e):
+        ss = SUPERSAMPLE
+        off = (np.arange(ss) + 0.5) / ss - 0.5
+        ov, ou = (a.reshape(-1) for a in np.meshgrid(off, off, indexing="ij"))
+        sv = (ii[e, None] + ov[None, :]).reshape(-1)
+        su = (jj[e, None] + ou[None, :]).reshape(-1)
+        sub, _ = _cast_and_shade(
+            scene.subpixel_rays(sv, su),
+            np.repeat(bg[e], ss * ss, axis=0),
+            np.repeat(gain[e], ss * ss),
+            geom,
+            y_tool_cam,
+            shaft_mat,
+            jaw_mat,
+            light,
+            ambient,
+        )
+        rgb[e] = sub.reshape(len(e), ss * ss, 3).mean(axis=1)
+    canvas[i0 : i1 + 1, j0 : j1 + 1] = rgb.reshape(bh, bw, 3)
+
+
+def _cast_and_shade(rays, bg, gain, geom: InstrumentGeometry, y_tool_cam, shaft_mat, jaw_mat, light, ambient):
+    """Colour (N, 3) float32 [DN] of rays (background `bg` [DN] where they miss, `gain` (N,) DN per unit
+    radiance) and a label (N,) int8 of what
+    they hit (part, with the jaw groove as its own label) for edge detection."""
+    part, t, normal = cast_instrument(rays, geom)
+    out = bg.astype(np.float32, copy=True)
+    label = part.copy()
+    hit = part != 0
+    if not np.any(hit):
+        return out, label
+    p = rays[hit] * t[hit, None]
+    n_hit, r_hit, part_hit = normal[hit], rays[hit], part[hit]
+    rgb = np.empty((len(p), 3), np.float32)
+    is_shaft = (part_hit == PART_SHAFT) | (part_hit == PART_END_FACE)
+    if np.any(is_shaft):
+        sel = part_hit == PART_SHAFT
+        rgb[sel] = shade(p[sel], n_hit[sel], r_hit[sel], shaft_mat, light, ambient, axis=geom.axis_cam)
+        sel = part_hit == PART_END_FACE
+        rgb[sel] = shade(p[sel], n_hit[sel], r_hit[sel], shaft_mat, light, ambient)
+    is_jaw = ~is_shaft
+    if np.any(is_jaw):
+        pj = p[is_jaw]
+        # the gap between the two jaw halves: a dark groove in the tool's x-z plane
+        groove = np.abs((pj - geom.p_tip_cam_m) @ y_tool_cam) < JAW_GROOVE_M
+        alb = np.where(groove[:, None], jaw_mat.albedo * 0.15, jaw_mat.albedo)
+        rgb[is_jaw] = shade(pj, n_hit[is_jaw], r_hit[is_jaw], jaw_mat, light, ambient, albedo=alb)
+        rgb[is_jaw] *= np.where(groove, 0.3, 1.0)[:, None]
+        lab_hit = label[hit]
+        lab_hit[is_jaw] += 10 * groove
+        label[hit] = lab_hit
+    out[hit] = rgb * gain[hit, None]
+    return out, label
+
+
+def draw_blob(canvas, coverage_out, scene: Scene, geom: InstrumentGeometry, rng: np.random.Generator) -> None:
+    """A soft tissue-coloured or bloody blob (a flap, a drop on the lens) over part of the shaft."""
+    s = rng.uniform(geom.s_junction - 0.06, geom.s_junction)
+    p = geom.point(s)
+    if p[2] < Z_NEAR_M:
+        p = geom.point(geom.s_junction)
+    centre = _axis_px(scene, p) + rng.normal(0.0, 15.0, 2)
+    axes = rng.uniform(12, 60, 2)
+    mask = np.zeros(canvas.shape[:2], np.uint8)
+    cv2.ellipse(
+        mask,
+        (int(centre[0] * 16), int(centre[1] * 16)),
+        (int(axes[0] * 16), int(axes[1] * 16)),
+        float(rng.uniform(0, 180)),
+        0,
+        360,
+        255,
+        -1,
+        cv2.LINE_AA,
+        4,
+    )
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0 or h == 0:
+        return
+    sl = np.s_[y : y + h, x : x + w]
+    alpha = mask[sl].astype(np.float32) / 255.0
+    colour = np.array([rng.uniform(0.45, 0.85), rng.uniform(0.08, 0.35), rng.uniform(0.08, 0.3)], np.float32)
+    shade_f = (0.85 + 0.15 * cv2.GaussianBlur(rng.random((h, w), dtype=np.float32), (0, 0), 3.0))[..., None]
+    canvas[sl] += alpha[..., None] * (colour * shade_f * scene.gain_dn[sl][..., None] - canvas[sl])
+    coverage_out[sl] = np.maximum(coverage_out[sl], alpha)
+
+
+def random_second_instrument(scene: Scene, geom: InstrumentGeometry, rng: np.random.Generator):
+    """A second shaft crossing in front of the instrument: (geometry, (line_left, line_right)) or None."""
+    s = rng.uniform(geom.s_junction - 0.05, geom.s_junction)
+    p = geom.point(s)
+    if p[2] < 0.03:
+        return None
+    q = p * rng.uniform(0.6, 0.85)  # on the same line of sight, nearer the camera
+    view = q / np.linalg.norm(q)
+    a = rng.normal(size=3)
+    a -= (a @ view) * view
+    a /= np.linalg.norm(a)
+    tip = q + a * rng.uniform(0.01, 0.04)
+    g2 = InstrumentGeometry(tip, a, float(rng.uniform(0.0025, 0.005)), 0.001, 0.0, 0.5)
+    try:
+        lines = silhouette_lines(g2, scene.camera)
+    except ValueError:
+        return None
+    return g2, lines[:2]
+
+
+def instrument_masks(scene: Scene, geom: InstrumentGeometry, line_l, line_r) -> tuple[np.ndarray, np.ndarray]:
+    """(shaft mask, jaws mask) (H, W) bool over image pixels, by casting each pixel centre's ray."""
+    u, v = scene.u_und, scene.v_und
+    inside = (line_l[0] * u + line_l[1] * v + line_l[2] >= 0) & (line_r[0] * u + line_r[1] * v + line_r[2] >= 0)
+    iy, ix = np.nonzero(inside)
+    shaft = np.zeros(inside.shape, bool)
+    jaws = np.zeros(inside.shape, bool)
+    if len(iy):
+        c = scene.camera
+        x = (u[iy, ix].astype(np.float64) - c.cx) / c.fx
+        y = (v[iy, ix].astype(np.float64) - c.cy) / c.fy
+        part, _, _ = cast_instrument(np.stack([x, y, np.ones_like(x)], -1), geom)
+        shaft[iy, ix] = (part == PART_SHAFT) | (part == PART_END_FACE)
+        jaws[iy, ix] = (part == PART_JAWS) | (part == PART_JAW_TIP)
+    return shaft, jaws
