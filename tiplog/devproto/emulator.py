@@ -113,6 +113,7 @@ class DeviceEmulator:
         self._conn_bytes = 0
         self._host_open = threading.Event()
         self._closed = threading.Event()
+        self._hello_due = False
 
     # plug / unplug ----------------------------------------------------------
     @property
@@ -140,6 +141,7 @@ class DeviceEmulator:
             self._connection += 1
             self._conn_bytes = 0
             self._host_open.clear()
+            self._hello_due = True
             self.plug_times_ns.append(now_ns())
             log.info("plugged %s -> %s", self.link, os.ttyname(slave))
 
@@ -246,7 +248,12 @@ class DeviceEmulator:
         self.send(HelloPacket(0, device_us, self.firmware, self.device_id, self.rates_hz, tx_dropped=tx_dropped))
 
     def send(self, pkt: Packet) -> None:
-        """Number `pkt` on its stream, inject faults, write it (or not, if unplugged)."""
+        """Number `pkt` on its stream, inject faults, write it (or not, if unplugged).
+        The first packet after a host opened the port is preceded by a HELLO."""
+        if self._hello_due and pkt.type != PacketType.HELLO and self._master is not None:
+            if not self.wait_for_host or self._host_open.is_set() or self.wait_host():
+                self._hello_due = False
+                self.send_hello(pkt.device_us)
         pkt.seq = self._seq[pkt.type]
         self._seq[pkt.type] = (pkt.seq + 1) % SEQ_MODULO
         frame = encode_packet_frame(pkt)

@@ -87,7 +87,7 @@ def cobs_decode(chunk: bytes) -> bytes:
         codes.append(pos)
         pos += code
     if pos != n:
-        raise FrameError("cobs", f"last block runs {pos - n} byte(s) past the end (truncated?)")
+        raise FrameError("truncated", f"last block runs {pos - n} byte(s) past the end (truncated?)")
     if len(codes) == 1:
         return chunk[1:]
     buf = bytearray(chunk)
@@ -106,7 +106,7 @@ def _cobs_decode_slow(chunk: bytes) -> bytes:
             raise FrameError("cobs", f"zero code byte at {pos}")
         end = pos + code
         if end > n:
-            raise FrameError("cobs", f"last block runs {end - n} byte(s) past the end (truncated?)")
+            raise FrameError("truncated", f"last block runs {end - n} byte(s) past the end (truncated?)")
         out += chunk[pos + 1 : end]
         pos = end
         if code != 0xFF and pos < n:
