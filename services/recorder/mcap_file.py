@@ -1,9 +1,10 @@
 """One recording file: an McapWriter over a stream that reports every failed write, and a
 salvage path that leaves the file valid when the disk fills or the directory goes away.
 
-The McapWriter is flushed (chunk closed, bytes handed to the OS) every `flush_period_s`; the
-offset after each successful flush is a point where the file is a valid MCAP data section.
-A write that fails (ENOSPC, EIO, an unplugged disk) leaves a partial record after that
+The McapWriter is flushed (chunk closed, bytes handed to the OS) every `flush_period_s`.
+Every writer call that returns leaves the stream at a record boundary (a whole chunk with its
+message indexes, or nothing), a point where the file is a valid MCAP data section. A write
+that fails (ENOSPC, EIO, an unplugged disk) leaves a partial record after the last such
 point: `salvage()` truncates the file back to it and ends it with DataEnd + Footer + magic,
 so every reader opens it (without summary; `tiplog record recover` rebuilds the indexes).
 """
@@ -69,7 +70,7 @@ class RecordingFile:
         self._raw = opener(path)
         self._stream = _CheckedStream(self._raw)
         self.writer = McapWriter(self._stream, compression=compression, chunk_size=chunk_size)  # type: ignore[arg-type]
-        self.good_offset = 0  # end of the last complete flush
+        self.good_offset = 0  # end of the last complete record written (a valid prefix)
         self.written_by_topic: dict[str, int] = {}
         self.first_log_ns: int | None = None
         self.last_log_ns: int | None = None
@@ -81,6 +82,9 @@ class RecordingFile:
 
     def write(self, topic: str, type_name: str, payload: bytes, log_ns: int, publish_ns: int, sequence: int) -> None:
         self.writer.write_raw(topic, type_name, payload, log_ns, publish_ns, sequence)
+        # A call that returns leaves the stream at a record boundary (a whole chunk and its
+        # message indexes, or nothing): the file is valid up to here.
+        self.good_offset = self._stream.position
         self.written_by_topic[topic] = self.written_by_topic.get(topic, 0) + 1
         if self.first_log_ns is None:
             self.first_log_ns = log_ns
@@ -88,9 +92,11 @@ class RecordingFile:
 
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         self.writer.add_metadata(name, data)
+        self.good_offset = self._stream.position
 
     def add_attachment(self, name: str, data: bytes, media_type: str, log_ns: int) -> None:
         self.writer.add_attachment(name, data, media_type, log_ns)
+        self.good_offset = self._stream.position
 
     def flush(self) -> None:
         self.writer.flush()

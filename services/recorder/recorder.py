@@ -97,6 +97,7 @@ class Recorder:
         self._counts: dict[str, _Counts] = collections.defaultdict(_Counts)
         self._last_seq: dict[tuple[str, int], int] = {}
         self._recording = False  # read on Zenoh's threads without the lock (a bool is atomic)
+        self._faulted = False  # a session ended on a fault: keep counting drops until stop/start
         self.state = S.RECORDER_STATE_IDLE
         self.alarm = ""
         self.session = ""
@@ -108,6 +109,7 @@ class Recorder:
         self._free_bytes = 0
         self._events = 0
         self._start_reason = ""
+        self._last_path = ""
         self._device: device_pb2.DeviceStatus | None = None
         self._device_written = False
         self._auto_armed = True
@@ -119,6 +121,11 @@ class Recorder:
         if info.topic == "device/status":
             self._on_device_status(payload)
         if not self._recording:
+            if self._faulted:  # the session was cut short: count what it is missing
+                with self._lock:
+                    c = self._counts[info.topic]
+                    c.received += 1
+                    c.dropped += 1
             return
         n = len(payload)
         with self._lock:
@@ -191,6 +198,7 @@ class Recorder:
             st.path = str(f.path)
             st.bytes_written = self._bytes_before + f.bytes_written
         else:
+            st.path = self._last_path  # the file just finished, until the next one opens
             st.bytes_written = self._bytes_before
         st.free_bytes = max(0, self._free_bytes)
         if self._session_start_ns and self._recording:
@@ -308,6 +316,7 @@ class Recorder:
             ok, msg = self._start(cmd.reason or "command", cmd.session)
         elif a == A.RECORDER_ACTION_STOP:
             self._auto_armed = False  # the operator stopped: no restart until the device reconnects
+            self._faulted = False
             if self._file is None:
                 ok, msg = False, "not recording"
             else:
@@ -333,6 +342,7 @@ class Recorder:
             return False, self.alarm
         safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
         self.session = safe or self.config.session_prefix + time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        self._faulted = False
         with self._lock:
             self._counts.clear()
             self._last_seq.clear()
@@ -429,6 +439,7 @@ class Recorder:
         self._file = None
         if f is None:
             return ""
+        self._last_path = str(f.path)
         self._bytes_before += f.bytes_written
         try:
             self._write_device(f)
@@ -476,6 +487,8 @@ class Recorder:
         self._recording = False
         self._file = None
         if f is not None:
+            self._faulted = True
+            self._last_path = str(f.path)
             self._bytes_before += f.bytes_written
             if alarm.startswith("write failed"):
                 f.salvage()

@@ -1,0 +1,135 @@
+"""A recording back onto the bus with its original timing, or as fast as possible.
+
+The recorded payloads are sent as they are (`Publisher.put_bytes`, no re-encode). Each message
+is due at `t0 + (log_time - first_log_time) / speed` on the monotonic clock: lateness of one
+put never accumulates into the next. The wait sleeps to within a millisecond of the due time
+and spins the rest, which keeps the spacing within a fraction of a millisecond on an idle
+host.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from tiplog import topics
+from tiplog.bus import Bus, Publisher
+
+log = logging.getLogger(__name__)
+NS_PER_S = 1_000_000_000
+SPIN_NS = 1_000_000  # the last stretch before a due time is spun, not slept
+# Published by the live system itself: replaying them would confuse the running services.
+DEFAULT_EXCLUDE = ("recorder/",)
+
+
+@dataclass
+class ReplayReport:
+    messages_by_topic: Counter = field(default_factory=Counter)
+    skipped_topics: set[str] = field(default_factory=set)
+    duration_s: float = 0.0
+    max_late_ns: int = 0  # worst lateness of a put against its due time
+
+    @property
+    def messages(self) -> int:
+        return sum(self.messages_by_topic.values())
+
+
+def wait_until_ns(due_ns: int) -> int:
+    """Sleep, then spin, until time.monotonic_ns() >= due_ns; returns how late it woke (ns)."""
+    while True:
+        now = time.monotonic_ns()
+        left = due_ns - now
+        if left <= 0:
+            return -left
+        if left > SPIN_NS:
+            time.sleep((left - SPIN_NS) / NS_PER_S)
+
+
+def wait_for_subscribers(bus: Bus, topic_names: Iterable[str], timeout_s: float) -> bool:
+    """True once some subscriber matches one of the topics (the recorder, fusion, ...)."""
+    probes = [bus.session.declare_publisher(bus.key(t)) for t in topic_names]
+    try:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if any(p.matching_status.matching for p in probes):
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+    finally:
+        for p in probes:
+            p.undeclare()
+
+
+def replay(
+    bus: Bus,
+    path: str | Path,
+    *,
+    speed: float = 1.0,
+    as_fast_as_possible: bool = False,
+    topics_: Iterable[str] | None = None,
+    stop: threading.Event | None = None,
+    wait_s: float = 5.0,
+) -> ReplayReport:
+    """Publish the messages of `path` in log-time order; returns what was sent."""
+    if not as_fast_as_possible and not speed > 0:
+        raise ValueError(f"speed must be > 0 (got {speed})")
+    wanted = set(topics_) if topics_ else None
+    rep = ReplayReport()
+    pubs: dict[str, Publisher] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        if summary is not None:
+            names = [c.topic for c in summary.channels.values()]
+            chosen = [t for t in names if (t in wanted if wanted else not t.startswith(DEFAULT_EXCLUDE))]
+            for ch in summary.channels.values():  # declared before the clock starts
+                if ch.topic in chosen:
+                    sch = summary.schemas.get(ch.schema_id)
+                    _publisher(bus, pubs, ch.topic, sch.name if sch else "", rep)
+            if wait_s > 0 and chosen and not wait_for_subscribers(bus, chosen, wait_s):
+                log.warning("no subscriber for %s after %.1f s; replaying anyway", ", ".join(chosen), wait_s)
+        first: int | None = None
+        t0 = 0
+        t_start = time.monotonic_ns()
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if stop is not None and stop.is_set():
+                break
+            topic = channel.topic
+            if wanted is not None and topic not in wanted or wanted is None and topic.startswith(DEFAULT_EXCLUDE):
+                continue
+            pub = pubs.get(topic)
+            if pub is None:
+                pub = _publisher(bus, pubs, topic, schema.name if schema else "", rep)
+                if pub is None:
+                    continue
+            if first is None:
+                first = message.log_time
+                t0 = time.monotonic_ns() + 5_000_000  # a little lead for the first put
+            if not as_fast_as_possible:
+                late = wait_until_ns(t0 + int((message.log_time - first) / speed))
+                rep.max_late_ns = max(rep.max_late_ns, late)
+            pub.put_bytes(message.data)
+            rep.messages_by_topic[topic] += 1
+    rep.duration_s = (time.monotonic_ns() - t_start) / NS_PER_S
+    return rep
+
+
+def _publisher(bus: Bus, pubs: dict[str, Publisher], topic: str, type_name: str, rep: ReplayReport) -> Publisher | None:
+    if topic in pubs or topic in rep.skipped_topics:
+        return pubs.get(topic)
+    try:
+        cls = topics.message_class_by_name(type_name)
+    except KeyError:
+        log.warning("skipping %s: schema %r not known to this build", topic, type_name)
+        rep.skipped_topics.add(topic)
+        return None
+    pubs[topic] = bus.publisher(topic, cls)
+    return pubs[topic]
