@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections import Counter
+from collections.abc import Callable
 
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
@@ -41,6 +42,7 @@ class CameraRunner:
         stall_timeout_s: float = 2.0,
         reconnect_s: float = 0.5,
         info_period_s: float = 1.0,
+        camera_factory: Callable[[CameraConfig], Camera] = make_camera,
     ) -> None:
         self.config = config
         self.status = status
@@ -48,6 +50,7 @@ class CameraRunner:
         self.stall_timeout_s = stall_timeout_s
         self.reconnect_s = reconnect_s
         self.info_period_s = info_period_s
+        self._factory = camera_factory
         self.faults: Counter[str] = Counter()
         self.published = 0
         self._image_pub = bus.publisher("camera/image")
@@ -73,7 +76,7 @@ class CameraRunner:
     def _run(self) -> None:
         connected_once = False
         while not self._stop.is_set():
-            cam = make_camera(self.config)
+            cam = self._factory(self.config)
             try:
                 cam.connect()
             except (CameraReadError, OSError, RuntimeError, ValueError) as e:

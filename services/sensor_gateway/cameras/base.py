@@ -131,9 +131,10 @@ class Camera(abc.ABC):
             if self._latest is None and self._latest_error is None:
                 self._new.wait(timeout_ms / 1000.0)
             frame, err = self._latest, self._latest_error
-            self._latest = self._latest_error = None
-        if frame is not None:
-            return frame
+            if frame is not None:
+                self._latest = None
+                return frame
+            self._latest_error = None
         if err is not None:
             raise err
         raise TimeoutError(f"{self}: no frame within {timeout_ms:.0f} ms")
@@ -145,7 +146,12 @@ class Camera(abc.ABC):
             except (CameraReadError, DeviceNotConnectedError) as e:
                 frame, err = None, e
             with self._new:
-                self._latest, self._latest_error = frame, err
+                # A newer frame replaces an unread one (latest wins); an error waits
+                # behind an unread frame so that the frame is not lost to it.
+                if frame is not None:
+                    self._latest, self._latest_error = frame, None
+                else:
+                    self._latest_error = err
                 self._new.notify_all()
             if err is not None:
                 self._stop.wait(0.05)
@@ -155,7 +161,7 @@ class Camera(abc.ABC):
             raise DeviceNotConnectedError(f"{self} is not connected")
         self._stop.set()
         if self._thread is not None:
-            self._thread.join(2.0)
+            self._thread.join(1.0)  # a read blocked in a driver is left to finish alone
             self._thread = None
         self._connected = False
         self._disconnect()
