@@ -179,29 +179,16 @@ def render_frame(
     occlusion, occ_cov = "none", None
     if rng.random() < params.occlusion_probability:
         occ_cov = np.zeros(canvas.shape[:2], np.float32)
-        if rng.random() < 0.5:
+        other = random_second_instrument(scene, geom, rng) if rng.random() < 0.5 else None
+        if other is not None:
+            occlusion = "instrument"
+            g2, lines2 = other
+            mat2 = Material(np.full(3, rng.uniform(0.05, 0.25)), 0.6, 40.0)
+            draw_cylinder_band(canvas, scene, g2.p_tip_cam_m, g2.axis_cam, g2.shaft_radius_m, g2.s_proximal, 0.0,
+                               lines2, mat2, light, params.ambient, coverage_out=occ_cov)  # fmt: skip
+        if occlusion == "none" or not occ_cov.any():
             occlusion = "blob"
             draw_blob(canvas, occ_cov, scene, geom, rng)
-        else:
-            occlusion = "instrument"
-            other = random_second_instrument(scene, geom, rng)
-            if other is not None:
-                g2, lines2 = other
-                mat2 = Material(np.full(3, rng.uniform(0.05, 0.25)), 0.6, 40.0)
-                draw_cylinder_band(
-                    canvas,
-                    scene,
-                    g2.p_tip_cam_m,
-                    g2.axis_cam,
-                    g2.shaft_radius_m,
-                    g2.s_proximal,
-                    0.0,
-                    lines2,
-                    mat2,
-                    light,
-                    params.ambient,
-                    coverage_out=occ_cov,
-                )
     smoke = bool(rng.random() < params.smoke_probability)
     if smoke:
         _add_smoke(canvas, scene, rng, params.smoke_density)
