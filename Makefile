@@ -22,7 +22,14 @@ browser:
 demo: $(STAMP)
 	$(VENV)/bin/tiplog up
 
-test: $(STAMP) browser
+# The TypeScript MCAP reader (@mcap/core) for the recorder's interoperability test; pinned by
+# its package-lock.json. Without npm the test skips and says why.
+MCAP_NODE := tests/services/recorder/mcap_node
+$(MCAP_NODE)/node_modules/.installed: $(MCAP_NODE)/package-lock.json
+	if command -v npm >/dev/null; then cd $(MCAP_NODE) && npm ci --no-audit --no-fund && touch node_modules/.installed; \
+	else echo "npm not found: the TypeScript MCAP reader test will be skipped"; fi
+
+test: $(STAMP) browser $(MCAP_NODE)/node_modules/.installed
 	$(PY) -m pytest -q
 
 # Regenerate tiplog/v1 from proto/ (tests fail when the committed code differs).

@@ -64,8 +64,10 @@ def serve(
         reply = rec.command(cmd)
         query.reply(query.key_expr, reply.SerializeToString())
 
-    rec.start_thread()
+    # Subscribed before the writer starts: the first RECORDING status means the subscription
+    # is already declared (a publisher that sees it may start at once).
     bus.subscribe_raw(config.key_expr, rec.on_sample)
+    rec.start_thread()
     bus.queryable(topics.RECORDER_COMMAND, on_command)
     publish_status(rec.status())
     if ready is not None:
