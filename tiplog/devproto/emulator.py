@@ -74,14 +74,20 @@ class WrittenFrame:
     stream: str
     seq: int
     device_us: int
-    fate: str  # "intact", "truncated", "bitflip", "dropped", "unplugged"
+    fate: str  # "intact", "truncated", "bitflip", "dropped", "unplugged", "no_host"
     connection: int  # plug count when written (0: never plugged)
     end_offset: int  # bytes written on this connection once the frame was out
     reached: bool = False  # intact and read by the host before the port went away
 
 
 class DeviceEmulator:
-    """Pseudo-terminal device at `link` (a symlink path) speaking protocol version 1."""
+    """Pseudo-terminal device at `link` (a symlink path) speaking protocol version 1.
+
+    `wait_for_host`: send only once a host has opened the port (the firmware's DTR gate);
+    until then `send` blocks, or with `drop_without_host` discards the packet (fate
+    "no_host": a live source that must not fall behind). `record` keeps a ledger of every
+    packet's fate, for tests that compare what reached the port with what was published.
+    """
 
     def __init__(
         self,
@@ -92,6 +98,7 @@ class DeviceEmulator:
         device_id: str = "EMU-0001",
         rates_hz: dict[str, float] | None = None,
         wait_for_host: bool = True,
+        drop_without_host: bool = False,
         record: bool = False,
     ) -> None:
         self.link = Path(link)
@@ -100,6 +107,7 @@ class DeviceEmulator:
         self.device_id = device_id
         self.rates_hz = dict(rates_hz or DEFAULT_RATES_HZ)
         self.wait_for_host = wait_for_host
+        self.drop_without_host = drop_without_host
         self.record = record
         self.ledger: list[WrittenFrame] = []
         self.stats: Counter[str] = Counter()
@@ -251,7 +259,9 @@ class DeviceEmulator:
         """Number `pkt` on its stream, inject faults, write it (or not, if unplugged).
         The first packet after a host opened the port is preceded by a HELLO."""
         if self._hello_due and pkt.type != PacketType.HELLO and self._master is not None:
-            if not self.wait_for_host or self._host_open.is_set() or self.wait_host():
+            with self._lock:
+                present = not self.wait_for_host or self._host_present()
+            if present:
                 self._hello_due = False
                 self.send_hello(pkt.device_us)
         pkt.seq = self._seq[pkt.type]
@@ -264,15 +274,8 @@ class DeviceEmulator:
                 fate = "unplugged"
             elif f.drop_prob and rng.random() < f.drop_prob:
                 fate = "dropped"
-            else:
-                if self.wait_for_host and not self._host_open.is_set():
-                    self._lock.release()  # let unplug() in while we wait
-                    try:
-                        self.wait_host()
-                    finally:
-                        self._lock.acquire()
-                    if self._master is None:
-                        fate = "unplugged"
+            elif self.wait_for_host and not self._host_present():
+                fate = "unplugged" if self._master is None else "no_host"
             if fate == "intact":
                 if f.garbage_prob and rng.random() < f.garbage_prob:
                     junk = rng.randbytes(rng.randint(1, f.garbage_max_bytes))
@@ -295,6 +298,21 @@ class DeviceEmulator:
                         self._conn_bytes, fate == "intact",
                     )
                 )  # fmt: skip
+
+    def _host_present(self) -> bool:
+        """Whether a host holds the port open; blocks for one unless `drop_without_host`."""
+        if self._host_open.is_set():
+            return True
+        if self.drop_without_host:
+            with self._lock:
+                if self._master is not None:
+                    self._poll_master(0.0)
+            return self._host_open.is_set()
+        self._lock.release()  # let unplug() in while we wait (send holds the lock once)
+        try:
+            return self.wait_host()
+        finally:
+            self._lock.acquire()
 
     def _write(self, data: bytes) -> None:
         view = memoryview(data)
@@ -323,7 +341,7 @@ def run_synthetic(
     stall_for_s: float = 2.0,
 ) -> None:
     """Stream synthetic samples; `speed` 1.0 is real time, 0 as fast as the host reads.
-    Unplug and stall schedules are in device time (0 disables them)."""
+    Unplug and stall schedules are in device seconds (0 disables them)."""
     from tiplog.devproto.synthetic import synthetic_packets
 
     stop = stop or threading.Event()
@@ -331,17 +349,21 @@ def run_synthetic(
     wall0 = time.monotonic()
     next_unplug = unplug_every_s or math.inf
     next_stall = stall_every_s or math.inf
-    offset_s = 0.0  # device time skipped while stalled or unplugged
+    offset_s = 0.0  # wall time the device spent stalled (its clock stops: firmware hung)
+    replug_at: float | None = None
     for pkt in synthetic_packets(emu.rates_hz, seed=seed, start_us=start_us, firmware=emu.firmware,
                                  device_id=emu.device_id):  # fmt: skip
         t_s = (pkt.device_us - start_us) * 1e-6
         if stop.is_set() or (duration_s is not None and t_s >= duration_s):
             return
+        # The device keeps sampling while unplugged: those packets consume their sequence
+        # numbers and are never written, so the host sees the gap.
+        if replug_at is not None and t_s >= replug_at:
+            emu.plug()
+            replug_at = None
         if t_s >= next_unplug:
             emu.unplug()
-            if stop.wait(unplug_for_s / (speed or 1.0)):
-                return
-            emu.plug()
+            replug_at = t_s + unplug_for_s
             next_unplug += unplug_every_s
         if t_s >= next_stall:
             log.info("stalling for %.1f s", stall_for_s)
@@ -372,6 +394,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--unplug-for", type=float, default=1.0)
     ap.add_argument("--stall-every", type=float, default=0.0, help="seconds between stalls (0: never)")
     ap.add_argument("--stall-for", type=float, default=2.0)
+    ap.add_argument(
+        "--no-host",
+        choices=["drop", "block"],
+        default="drop",
+        help="while no host has the port open: drop samples (default) or wait",
+    )
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -380,7 +408,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(str(e))
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with DeviceEmulator(a.link, faults) as emu:
+    with DeviceEmulator(a.link, faults, drop_without_host=a.no_host == "drop") as emu:
         try:
             run_synthetic(
                 emu, speed=a.speed, duration_s=a.duration, seed=a.seed, stop=stop,
