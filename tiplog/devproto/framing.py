@@ -70,30 +70,28 @@ def _blocks(data: bytes) -> Iterator[bytes]:
 
 
 def cobs_decode(chunk: bytes) -> bytes:
-    """Inverse of `cobs_encode`; FrameError('cobs') on a malformed chunk."""
+    """Inverse of `cobs_encode`; FrameError('truncated'|'cobs') on a malformed chunk."""
     n = len(chunk)
     if n == 0:
         raise FrameError("cobs", "empty chunk")
-    # Fast path: walk the code bytes; if none is 0xFF, the decoded frame is the chunk with
-    # every code byte after the first replaced by 0x00, minus the first byte.
-    pos = 0
-    codes = []
+    # Fast path: with no 0xFF code (every frame under 254 bytes), the decoded frame is the
+    # chunk with each code byte after the first replaced by 0x00, minus the first byte.
+    pos = chunk[0]
+    if pos == 0xFF:
+        return _cobs_decode_slow(chunk)
+    if pos == n:
+        return chunk[1:]
+    buf = bytearray(chunk)
     while pos < n:
-        code = chunk[pos]
-        if code == 0:
-            raise FrameError("cobs", f"zero code byte at {pos}")
-        if code == 0xFF:
+        code = buf[pos]
+        if code == 0xFF or code == 0:
             return _cobs_decode_slow(chunk)
-        codes.append(pos)
+        buf[pos] = 0
         pos += code
     if pos != n:
         raise FrameError("truncated", f"last block runs {pos - n} byte(s) past the end (truncated?)")
-    if len(codes) == 1:
-        return chunk[1:]
-    buf = bytearray(chunk)
-    for p in codes[1:]:
-        buf[p] = 0
-    return bytes(buf[1:])
+    del buf[0]
+    return bytes(buf)
 
 
 def _cobs_decode_slow(chunk: bytes) -> bytes:
