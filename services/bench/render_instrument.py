@@ -74,7 +74,6 @@ def draw_cylinder_band(
     e0, e1 = p_axis + s_lo_v * d, p_axis + s_hi_v * d
     q0, q1 = _axis_px(scene, e0), _axis_px(scene, e1)
     r_px = radius * max(scene.camera.fx, scene.camera.fy) / min(e0[2], e1[2]) + 3.0 + scene.max_shift_px
-    margin = BAND_MARGIN_PX + scene.max_shift_px
     g = q1 - q0
     rows = abs(g[1]) >= abs(g[0])
     major_n, minor_n = (hc, wc) if rows else (wc, hc)
@@ -87,15 +86,23 @@ def draw_cylinder_band(
     lo = np.zeros_like(major)
     hi = np.full_like(major, minor_n - 1.0)
     cl = [np.asarray(ln, float) for ln in lines]
-    for a, b, c in cl:
-        a_min, a_maj = (a, b) if rows else (b, a)
-        rhs = -margin - a_maj * major - c
-        if a_min > 1e-9:
-            lo = np.maximum(lo, rhs / a_min)
-        elif a_min < -1e-9:
-            hi = np.minimum(hi, rhs / a_min)
+    for line in cl:
+        a_min = line[0] if rows else line[1]
+        if abs(a_min) < 0.2:  # steep against the scan: bound it loosely, as a half-plane
+            a_maj = line[1] if rows else line[0]
+            rhs = -BAND_MARGIN_PX - scene.max_shift_px - a_maj * major - line[2]
+            if a_min > 1e-9:
+                lo = np.maximum(lo, rhs / a_min)
+            elif a_min < -1e-9:
+                hi = np.minimum(hi, rhs / a_min)
+            else:
+                hi = np.where(rhs > 0, -1.0, hi)
+            continue
+        pos = _line_in_image(scene, line, rows, major)  # where the (distorted) line crosses each scan
+        if a_min > 0:
+            lo = np.maximum(lo, pos - (BAND_MARGIN_PX + 1.0) / a_min)
         else:
-            hi = np.where(rhs > 0, -1.0, hi)
+            hi = np.minimum(hi, pos - (BAND_MARGIN_PX + 1.0) / a_min)
     lo, hi = np.floor(lo).astype(np.int64), np.ceil(hi).astype(np.int64)
     width = int((hi - lo + 1).max())
     if width <= 0:
@@ -129,6 +136,25 @@ def draw_cylinder_band(
     canvas[ii, jj] = bg + cov[:, None] * (rgb - bg)
     if coverage_out is not None:
         coverage_out[ii, jj] = np.maximum(coverage_out[ii, jj], cov)
+
+
+def _line_in_image(scene: Scene, line: np.ndarray, rows: bool, major: np.ndarray) -> np.ndarray:
+    """Minor coordinate (column if rows, else row) where an undistorted-pixel line, drawn through the
+    lens distortion, crosses each major coordinate (image pixels); to about 0.1 px."""
+    a, b, c = line
+    a_min, a_maj = (a, b) if rows else (b, a)
+    if not scene.distorted:
+        return (-a_maj * major - c) / a_min
+    pad = 3.0 * scene.max_shift_px + 8.0
+    m_und = np.linspace(major[0] - pad, major[-1] + pad, max(8, int((major[-1] - major[0] + 2 * pad) / 4.0)))
+    n_und = (-a_maj * m_und - c) / a_min
+    u, v = (n_und, m_und) if rows else (m_und, n_und)
+    cam = scene.camera
+    xy = cam.distort_normalized(np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy], -1))
+    ud, vd = xy[:, 0] * cam.fx + cam.cx, xy[:, 1] * cam.fy + cam.cy
+    md, nd = (vd, ud) if rows else (ud, vd)
+    order = np.argsort(md)
+    return np.interp(major, md[order], nd[order])
 
 
 def _clip_axis_to_front_raw(p_axis, d, s_lo, s_hi):

@@ -1,0 +1,93 @@
+"""Frames per second of the bench's pixel renderer (1280x720 D405 colour, one core by default)
+for typical poses: the shaft about 0.14 m inserted, the camera 0.2-0.3 m from the tip looking
+down, the shaft within 10 deg of its 28.6 deg neutral tilt; without and with smoke."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import cv2
+import numpy as np
+
+from services.bench.render import RenderParams, get_scene, render_frame
+from tiplog.camera_model import CameraModel
+
+NEUTRAL_FROM_VERTICAL_DEG = 28.6
+INSERTION_M = 0.14
+
+
+def typical_poses(n: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """T_camera_tool for a camera looking straight down (+z): the tip 0.2-0.3 m deep near the image
+    centre, the shaft (tool z, distal) tilted within 10 deg of neutral, any azimuth and roll."""
+    poses = []
+    while len(poses) < n:
+        depth = rng.uniform(0.2, 0.3)
+        tip = np.array([rng.uniform(-0.25, 0.25) * depth, rng.uniform(-0.15, 0.15) * depth, depth])
+        th = np.radians(NEUTRAL_FROM_VERTICAL_DEG + rng.uniform(-10.0, 10.0))
+        az = rng.uniform(0, 2 * np.pi)
+        z = np.array([np.sin(th) * np.cos(az), np.sin(th) * np.sin(az), np.cos(th)])
+        rcm = tip - INSERTION_M * z  # the port; the shaft runs on past it, out of the image
+        if rcm[2] < 0.02:
+            continue
+        x = np.cross([0.0, 0.0, 1.0], z)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        roll = rng.uniform(0, 2 * np.pi)
+        x, y = np.cos(roll) * x + np.sin(roll) * y, -np.sin(roll) * x + np.cos(roll) * y
+        T = np.eye(4)
+        T[:3, :3] = np.stack([x, y, z], 1)
+        T[:3, 3] = tip
+        poses.append(T)
+    return poses
+
+
+def measure(camera: CameraModel, params: RenderParams, poses: list[np.ndarray], seconds: float) -> tuple[float, float]:
+    """(frames per wall-clock second, frames per CPU second of this process): the second is the
+    figure to trust on a machine that others are loading."""
+    rng = np.random.default_rng(1)
+    render_frame(camera, poses[0], params, rng)  # warm (scene already built)
+    n, t0, c0 = 0, time.perf_counter(), time.process_time()
+    while True:
+        render_frame(camera, poses[n % len(poses)], params, rng)
+        n += 1
+        dt = time.perf_counter() - t0
+        if dt >= seconds and n >= 5:
+            return n / dt, n / max(time.process_time() - c0, 1e-9)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--seconds", type=float, default=4.0, help="time per case")
+    ap.add_argument("--threads", type=int, default=1, help="OpenCV threads (1: one core)")
+    ap.add_argument("--png", default="", help="also write one example frame here (cv2.imwrite)")
+    args = ap.parse_args(argv)
+    cv2.setNumThreads(args.threads)
+    camera = CameraModel.d405_colour()
+    poses = typical_poses(16, np.random.default_rng(0))
+    base = RenderParams(smoke_probability=0.0, occlusion_probability=0.0)
+    t0 = time.perf_counter()
+    get_scene(camera, base)
+    print(f"scene precompute (floor texture, rays, gain): {time.perf_counter() - t0:.2f} s, once per scene")
+    cases = {
+        "no smoke, no occlusion": base,
+        "smoke every frame": base.model_copy(update={"smoke_probability": 1.0}),
+        "occlusion every frame": base.model_copy(update={"occlusion_probability": 1.0}),
+        "defaults (5 % smoke, 5 % occlusion)": RenderParams(),
+    }
+    for name, params in cases.items():
+        fps, fps_cpu = measure(camera, params, poses, args.seconds)
+        print(
+            f"{name:38s} {fps:6.1f} frames/s wall ({1e3 / fps:5.1f} ms), {fps_cpu:6.1f} per CPU-second "
+            f"({1e3 / fps_cpu:5.1f} ms), {args.threads} OpenCV thread(s)"
+        )
+    if args.png:
+        truth: dict = {}
+        img = render_frame(camera, poses[0], RenderParams(), np.random.default_rng(2), truth)
+        cv2.imwrite(args.png, cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        print(f"example frame: {args.png} (junction at {np.round(truth['junction_px_distorted'], 1)} px)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
