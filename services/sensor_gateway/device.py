@@ -94,6 +94,12 @@ class DeviceReader:
             log.info("opened %s", cfg.port)
             try:
                 self._read_until_lost(port, t_open)
+            except Exception:  # a bug here must cost a reconnect, never the gateway
+                log.exception("serial reader failed on %s; reopening", cfg.port)
+                self.faults["internal_errors"] += 1
+                self._sync_faults()
+                self.status.set_state(device_pb2.DEVICE_STATE_DISCONNECTED, "internal error; reopening")
+                self._stop.wait(backoff)
             finally:
                 try:
                     port.close()

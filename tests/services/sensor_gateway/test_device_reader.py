@@ -1,0 +1,80 @@
+"""DeviceReader on a pyserial URL (socket://): messages as specified, the HELLO in the status,
+a dropped connection reported and reopened, an unknown ToF status counted."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+from services.sensor_gateway.device import DeviceLinkConfig, DeviceReader
+from services.sensor_gateway.status import GatewayStatus
+from tiplog.bus import Bus
+from tiplog.devproto.packets import HelloPacket, PacketType, TofPacket, Vec3Packet, encode_packet_frame
+from tiplog.v1 import device_pb2
+
+
+def wait_for(predicate, timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    tick = threading.Event()
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        tick.wait(0.01)
+    return True
+
+
+def test_reader_over_a_socket_url(bus_pair_configs):
+    listen_cfg, connect_cfg = bus_pair_configs
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    gyros, tofs = [], []
+    statuses: list[device_pb2.DeviceStatus] = []
+    with Bus(listen_cfg) as sub_bus, Bus(connect_cfg) as pub_bus:
+        sub_bus.subscribe("device/gyro", lambda m, i: gyros.append(m))
+        sub_bus.subscribe("device/tof", lambda m, i: tofs.append(m))
+        status = GatewayStatus(f"socket://127.0.0.1:{port}", statuses.append)
+        cfg = DeviceLinkConfig(port=f"socket://127.0.0.1:{port}", reconnect_initial_s=0.02, reconnect_max_s=0.1)
+        reader = DeviceReader(cfg, pub_bus, status)
+        assert wait_for(lambda: reader._pubs[PacketType.GYRO]._pub.matching_status.matching)
+        reader.start()
+        try:
+            conn, _ = server.accept()
+            # pyserial flushes its input on open: send once the port is open (the DTR gate).
+            assert wait_for(lambda: len(reader.connect_times_ns) == 1)
+            hello = HelloPacket(0, 1, "fw 9.9", "DEV-7", {"gyro": 200.0, "accel": 240.0, "tof": 100.0, "mag": 0.0})
+            data = encode_packet_frame(hello)
+            for k in range(50):
+                data += encode_packet_frame(Vec3Packet(PacketType.GYRO, k, 1000 + 5000 * k, 0.1 * k, 0.0, -1.0))
+            data += encode_packet_frame(TofPacket(0, 2000, 120.0, 9, 0.0, False))  # status 9: unknown
+            conn.sendall(data)
+            assert wait_for(lambda: len(gyros) == 50 and len(tofs) == 1), (len(gyros), len(tofs))
+            conn.close()  # the "device" goes away
+            assert wait_for(lambda: reader.faults["disconnects"] == 1)
+            conn, _ = server.accept()  # reopened
+            assert wait_for(lambda: len(reader.connect_times_ns) == 2)
+            conn.sendall(b"".join(
+                encode_packet_frame(Vec3Packet(PacketType.GYRO, k, 1000 + 5000 * k, 0.0, 0.0, 0.0))
+                for k in range(60, 70)
+            ))  # fmt: skip
+            assert wait_for(lambda: len(gyros) == 60)
+            conn.close()
+        finally:
+            reader.stop()
+            server.close()
+    g = gyros[3]
+    assert g.header.device_stamp_ns == (1000 + 5000 * 3) * 1000 and g.header.frame_id == "imu"
+    assert abs(g.rate_radps.x - 0.3) < 1e-6 and g.rate_radps.z == -1.0
+    assert [m.header.seq for m in gyros] == list(range(50)) + list(range(60, 70))
+    stamps = [m.header.stamp_ns for m in gyros]
+    assert stamps == sorted(stamps) and stamps[0] > 0
+    assert tofs[0].status == device_pb2.TOF_STATUS_UNSPECIFIED and tofs[0].range_raw_mm == 120.0
+    assert reader.faults["tof_status_unknown"] == 1 and reader.faults["reconnects"] == 1
+    assert reader.parser.faults["seq_gap_samples"] == 10  # 50..59 never came
+    assert status.firmware == "fw 9.9" and status.device_id == "DEV-7"
+    assert status.nominal_rates_hz == {"gyro": 200.0, "accel": 240.0, "tof": 100.0}
+    states = [s for _, s in status.state_changes]
+    assert states[:2] == [device_pb2.DEVICE_STATE_CONNECTING, device_pb2.DEVICE_STATE_STREAMING]
+    assert device_pb2.DEVICE_STATE_DISCONNECTED in states[2:]
+    msg = status.publish_periodic()
+    assert msg.faults["disconnects"] >= 1 and msg.frames_ok == 62 and msg.firmware == "fw 9.9"
