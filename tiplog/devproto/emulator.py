@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import fcntl
 import logging
-import math
 import os
 import random
 import select
@@ -328,56 +327,6 @@ class DeviceEmulator:
         self.stats["bytes"] += len(data) - len(view)
 
 
-def run_synthetic(
-    emu: DeviceEmulator,
-    *,
-    speed: float = 1.0,
-    duration_s: float | None = None,
-    seed: int = 0,
-    stop: threading.Event | None = None,
-    unplug_every_s: float = 0.0,
-    unplug_for_s: float = 1.0,
-    stall_every_s: float = 0.0,
-    stall_for_s: float = 2.0,
-) -> None:
-    """Stream synthetic samples; `speed` 1.0 is real time, 0 as fast as the host reads.
-    Unplug and stall schedules are in device seconds (0 disables them)."""
-    from tiplog.devproto.synthetic import synthetic_packets
-
-    stop = stop or threading.Event()
-    start_us = 1_000_000
-    wall0 = time.monotonic()
-    next_unplug = unplug_every_s or math.inf
-    next_stall = stall_every_s or math.inf
-    offset_s = 0.0  # wall time the device spent stalled (its clock stops: firmware hung)
-    replug_at: float | None = None
-    for pkt in synthetic_packets(emu.rates_hz, seed=seed, start_us=start_us, firmware=emu.firmware,
-                                 device_id=emu.device_id):  # fmt: skip
-        t_s = (pkt.device_us - start_us) * 1e-6
-        if stop.is_set() or (duration_s is not None and t_s >= duration_s):
-            return
-        # The device keeps sampling while unplugged: those packets consume their sequence
-        # numbers and are never written, so the host sees the gap.
-        if replug_at is not None and t_s >= replug_at:
-            emu.plug()
-            replug_at = None
-        if t_s >= next_unplug:
-            emu.unplug()
-            replug_at = t_s + unplug_for_s
-            next_unplug += unplug_every_s
-        if t_s >= next_stall:
-            log.info("stalling for %.1f s", stall_for_s)
-            if stop.wait(stall_for_s / (speed or 1.0)):
-                return
-            offset_s += stall_for_s
-            next_stall += stall_every_s
-        if speed > 0:
-            lag = wall0 + (t_s + offset_s) / speed - time.monotonic()
-            if lag > 0:
-                time.sleep(lag)
-        emu.send(pkt)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     import argparse
 
@@ -408,6 +357,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(str(e))
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    from tiplog.devproto.synthetic import run_synthetic
+
     with DeviceEmulator(a.link, faults, drop_without_host=a.no_host == "drop") as emu:
         try:
             run_synthetic(
