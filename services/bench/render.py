@@ -159,7 +159,7 @@ def render_frame(
     jaw_mat = Material(np.asarray(params.jaw_albedo), params.jaw_specular, params.jaw_shininess)
 
     canvas = scene.floor_dn.copy()
-    draw_cylinder_band(
+    band = draw_cylinder_band(
         canvas,
         scene,
         geom.p_tip_cam_m,
@@ -172,7 +172,7 @@ def render_frame(
         light,
         params.ambient,
     )
-    draw_jaws_region(
+    box = draw_jaws_region(
         canvas, scene, geom, np.asarray(T_camera_tool, float)[:3, 1], shaft_mat, jaw_mat, light, params.ambient
     )
 
@@ -206,7 +206,11 @@ def render_frame(
     img = cv2.convertScaleAbs(dn)  # rounds and saturates at 255 (dn >= 0 here)
 
     if truth_out is not None:
-        _fill_truth(truth_out, scene, camera, geom, line_l, line_r, n_l, n_r, occlusion, occ_cov, smoke)
+        rows, cols = band
+        if box is not None:  # the jaws and the junction may reach beyond the band
+            bi, bj = np.mgrid[box[0], box[1]]
+            rows, cols = np.concatenate([rows, bi.ravel()]), np.concatenate([cols, bj.ravel()])
+        _fill_truth(truth_out, scene, camera, geom, (rows, cols), line_l, line_r, n_l, n_r, occlusion, occ_cov, smoke)
     return img
 
 
@@ -230,6 +234,7 @@ def _fill_truth(
     scene: Scene,
     camera: CameraModel,
     geom: InstrumentGeometry,
+    candidates,
     line_l,
     line_r,
     n_l,
@@ -242,7 +247,7 @@ def _fill_truth(
     pts = np.stack([p_j, geom.p_tip_cam_m])
     und = camera.project(pts, distort=False)
     dis = camera.project(pts, distort=True)
-    mask, jaws = instrument_masks(scene, geom, line_l, line_r)
+    mask, jaws = instrument_masks(scene, geom, line_l, line_r, candidates)
     if occ_cov is not None:
         occ = occ_cov >= 0.5
     else:

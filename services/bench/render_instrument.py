@@ -63,13 +63,13 @@ def _axis_px(scene: Scene, p: np.ndarray) -> np.ndarray:
 
 def draw_cylinder_band(
     canvas, scene: Scene, p_axis, d, radius, s_lo, s_hi, lines, mat: Material, light, ambient, coverage_out=None
-) -> None:
+) -> tuple[np.ndarray, np.ndarray]:
     """Composite the cylinder piece s in [s_lo, s_hi] (axis point p_axis + s d, camera frame) over the
     canvas in place, edges from `lines` (left, right; undistorted pixels). Optionally max-accumulate
-    its coverage into `coverage_out` (Hc, Wc)."""
+    its coverage into `coverage_out` (H, W). Returns the (rows, cols) of the pixels it drew."""
     s_lo_v, s_hi_v = _clip_axis_to_front_raw(p_axis, d, s_lo, s_hi)
     if s_lo_v >= s_hi_v:
-        return
+        return np.empty(0, np.int64), np.empty(0, np.int64)
     hc, wc = canvas.shape[:2]
     e0, e1 = p_axis + s_lo_v * d, p_axis + s_hi_v * d
     q0, q1 = _axis_px(scene, e0), _axis_px(scene, e1)
@@ -81,7 +81,7 @@ def draw_cylinder_band(
     m0 = max(0, int(np.floor(min(q0[k], q1[k]) - r_px)))
     m1 = min(major_n - 1, int(np.ceil(max(q0[k], q1[k]) + r_px)))
     if m0 > m1:
-        return
+        return np.empty(0, np.int64), np.empty(0, np.int64)
     major = np.arange(m0, m1 + 1, dtype=np.float64)
     lo = np.zeros_like(major)
     hi = np.full_like(major, minor_n - 1.0)
@@ -106,7 +106,7 @@ def draw_cylinder_band(
     lo, hi = np.floor(lo).astype(np.int64), np.ceil(hi).astype(np.int64)
     width = int((hi - lo + 1).max())
     if width <= 0:
-        return
+        return np.empty(0, np.int64), np.empty(0, np.int64)
     minor = lo[:, None] + np.arange(width)[None, :]
     sel = minor <= hi[:, None]
     minor = minor[sel]
@@ -136,6 +136,7 @@ def draw_cylinder_band(
     canvas[ii, jj] = bg + cov[:, None] * (rgb - bg)
     if coverage_out is not None:
         coverage_out[ii, jj] = np.maximum(coverage_out[ii, jj], cov)
+    return ii, jj
 
 
 def _line_in_image(scene: Scene, line: np.ndarray, rows: bool, major: np.ndarray) -> np.ndarray:
@@ -170,7 +171,7 @@ def draw_jaws_region(
 ) -> None:
     """Cast the junction and the jaws in their bounding box, in place: one ray per pixel, and
     SUPERSAMPLE^2 rays in pixels where the hit part changes next door. The box's background is the
-    floor, so it replaces whatever the band drew there."""
+    floor, so it replaces whatever the band drew there. Returns the box (rows, cols slices), if any."""
     r = geom.shaft_radius_m
     s_vals = np.array([geom.s_junction - 2 * r, geom.s_junction, -geom.jaw_radius_m, 0.0])
     d = geom.axis_cam
@@ -182,13 +183,13 @@ def draw_jaws_region(
     pts = (geom.point(s_vals)[:, None, :] + ring[None]).reshape(-1, 3)
     pts = pts[pts[:, 2] >= Z_NEAR_M]
     if len(pts) == 0:
-        return
+        return None
     px = scene.camera.project(pts, distort=scene.distorted)
     hc, wc = canvas.shape[:2]
     j0, j1 = max(0, int(np.floor(px[:, 0].min())) - 2), min(wc - 1, int(np.ceil(px[:, 0].max())) + 2)
     i0, i1 = max(0, int(np.floor(px[:, 1].min())) - 2), min(hc - 1, int(np.ceil(px[:, 1].max())) + 2)
     if j0 > j1 or i0 > i1:
-        return
+        return None
     bh, bw = i1 - i0 + 1, j1 - j0 + 1
     ii, jj = np.mgrid[i0 : i1 + 1, j0 : j1 + 1]
     ii, jj = ii.reshape(-1), jj.reshape(-1)
@@ -223,6 +224,7 @@ def draw_jaws_region(
         )
         rgb[e] = sub.reshape(len(e), ss * ss, 3).mean(axis=1)
     canvas[i0 : i1 + 1, j0 : j1 + 1] = rgb.reshape(bh, bw, 3)
+    return slice(i0, i1 + 1), slice(j0, j1 + 1)
 
 
 def _cast_and_shade(rays, bg, gain, geom: InstrumentGeometry, y_tool_cam, shaft_mat, jaw_mat, light, ambient):
@@ -267,24 +269,19 @@ def draw_blob(canvas, coverage_out, scene: Scene, geom: InstrumentGeometry, rng:
         p = geom.point(geom.s_junction)
     centre = _axis_px(scene, p) + rng.normal(0.0, 15.0, 2)
     axes = rng.uniform(12, 60, 2)
-    mask = np.zeros(canvas.shape[:2], np.uint8)
-    cv2.ellipse(
-        mask,
-        (int(centre[0] * 16), int(centre[1] * 16)),
-        (int(axes[0] * 16), int(axes[1] * 16)),
-        float(rng.uniform(0, 180)),
-        0,
-        360,
-        255,
-        -1,
-        cv2.LINE_AA,
-        4,
-    )
-    x, y, w, h = cv2.boundingRect(mask)
-    if w == 0 or h == 0:
+    hc, wc = canvas.shape[:2]
+    r = int(np.ceil(axes.max())) + 2
+    x0, y0 = max(0, int(centre[0]) - r), max(0, int(centre[1]) - r)
+    x1, y1 = min(wc, int(centre[0]) + r + 1), min(hc, int(centre[1]) + r + 1)
+    if x0 >= x1 or y0 >= y1:
         return
-    sl = np.s_[y : y + h, x : x + w]
-    alpha = mask[sl].astype(np.float32) / 255.0
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    c16 = (int((centre[0] - x0) * 16), int((centre[1] - y0) * 16))
+    cv2.ellipse(mask, c16, (int(axes[0] * 16), int(axes[1] * 16)), float(rng.uniform(0, 180)), 0, 360, 255, -1,
+                cv2.LINE_AA, 4)  # fmt: skip
+    h, w = mask.shape
+    sl = np.s_[y0:y1, x0:x1]
+    alpha = mask.astype(np.float32) / 255.0
     colour = np.array([rng.uniform(0.45, 0.85), rng.uniform(0.08, 0.35), rng.uniform(0.08, 0.3)], np.float32)
     shade_f = (0.85 + 0.15 * cv2.GaussianBlur(rng.random((h, w), dtype=np.float32), (0, 0), 3.0))[..., None]
     canvas[sl] += alpha[..., None] * (colour * shade_f * scene.gain_dn[sl][..., None] - canvas[sl])
@@ -311,18 +308,23 @@ def random_second_instrument(scene: Scene, geom: InstrumentGeometry, rng: np.ran
     return g2, lines[:2]
 
 
-def instrument_masks(scene: Scene, geom: InstrumentGeometry, line_l, line_r) -> tuple[np.ndarray, np.ndarray]:
-    """(shaft mask, jaws mask) (H, W) bool over image pixels, by casting each pixel centre's ray."""
-    u, v = scene.u_und, scene.v_und
+def instrument_masks(
+    scene: Scene, geom: InstrumentGeometry, line_l, line_r, candidates=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(shaft mask, jaws mask) (H, W) bool over image pixels, by casting each pixel centre's ray.
+    `candidates`: (rows, cols) known to contain every instrument pixel (default: the whole frame)."""
+    h, w = scene.u_und.shape
+    if candidates is None:
+        iy, ix = np.nonzero(np.ones((h, w), bool))
+    else:
+        iy, ix = candidates
+    u, v = scene.u_und[iy, ix], scene.v_und[iy, ix]
     inside = (line_l[0] * u + line_l[1] * v + line_l[2] >= 0) & (line_r[0] * u + line_r[1] * v + line_r[2] >= 0)
-    iy, ix = np.nonzero(inside)
-    shaft = np.zeros(inside.shape, bool)
-    jaws = np.zeros(inside.shape, bool)
+    iy, ix = iy[inside], ix[inside]
+    shaft = np.zeros((h, w), bool)
+    jaws = np.zeros((h, w), bool)
     if len(iy):
-        c = scene.camera
-        x = (u[iy, ix].astype(np.float64) - c.cx) / c.fx
-        y = (v[iy, ix].astype(np.float64) - c.cy) / c.fy
-        part, _, _ = cast_instrument(np.stack([x, y, np.ones_like(x)], -1), geom)
+        part, _, _ = cast_instrument(scene.pixel_rays(iy, ix), geom)
         shaft[iy, ix] = (part == PART_SHAFT) | (part == PART_END_FACE)
         jaws[iy, ix] = (part == PART_JAWS) | (part == PART_JAW_TIP)
     return shaft, jaws

@@ -228,3 +228,22 @@ def test_every_occlusion_kind_occurs():
         kinds.add(truth["occlusion"])
         assert truth["occluder_mask"].any()
     assert kinds == {"blob", "instrument"}
+
+
+@pytest.mark.parametrize("camera", [PINHOLE, D405], ids=["pinhole", "d405"])
+def test_truth_masks_equal_a_whole_frame_cast(camera):
+    # the renderer casts only pixels near the instrument; casting every pixel must agree
+    from services.bench.render_geometry import InstrumentGeometry
+    from services.bench.render_instrument import instrument_masks
+
+    rng = np.random.default_rng(11)
+    params = RenderParams(**CLEAN)
+    for _ in range(4):
+        T = look_down_pose([rng.uniform(-0.05, 0.05), rng.uniform(-0.03, 0.03), rng.uniform(0.2, 0.3)],
+                           rng.uniform(18.6, 38.6), rng.uniform(0, 360))  # fmt: skip
+        truth: dict = {}
+        render_frame(camera, T, params, np.random.default_rng(0), truth)
+        geom = InstrumentGeometry.from_pose(T, params.shaft_radius_m, params.jaw_radius_m,
+                                            params.junction_from_tip_mm * 1e-3, params.shaft_length_m)  # fmt: skip
+        shaft, jaws = instrument_masks(get_scene(camera, params), geom, truth["line_left"], truth["line_right"])
+        assert np.array_equal(shaft, truth["mask"]) and np.array_equal(jaws, truth["jaws_mask"])
