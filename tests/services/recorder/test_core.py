@@ -231,3 +231,22 @@ def test_recover_truncated_file(tmp_path):
     assert "session" in read_metadata(tmp_path / "fixed.mcap")
     full = recover(src, tmp_path / "copy.mcap")
     assert full.complete and full.messages == 3000 and full.lost_bytes == 0
+
+
+def test_unwritable_directory_raises_alarm_and_stays_up(tmp_path):
+    blocker = tmp_path / "not_a_dir"
+    blocker.write_text("a file where the recordings folder should be")
+    statuses = Statuses()
+    rec = Recorder(cfg(tmp_path, out_dir=str(blocker / "rec")), on_status=statuses)
+    rec.start_thread()
+    try:
+        r = rec.command(cmd(A.RECORDER_ACTION_START, session="u"))
+        assert not r.ok and r.status.state == S.RECORDER_STATE_ERROR and "cannot open" in r.status.alarm
+        rec.on_sample(gyro(0), info(0))  # ignored, not raised
+        blocker.unlink()  # the operator fixes the mount: the next start works
+        r = rec.command(cmd(A.RECORDER_ACTION_START, session="u"))
+        assert r.ok and r.status.state == S.RECORDER_STATE_RECORDING and not r.status.alarm
+        assert rec.command(cmd(A.RECORDER_ACTION_STOP)).ok
+    finally:
+        rec.close()
+    assert read_summary(blocker / "rec" / "u_000.mcap").statistics.message_count == 0
