@@ -130,9 +130,13 @@ def _tilt(v: np.ndarray, rng: np.random.Generator, sd_deg: float) -> np.ndarray:
 def as_calibrated(truth: BenchConstants, sc: Scenario, rng: np.random.Generator) -> BenchConstants:
     """The truth perturbed by calibration errors of the scenario's sizes (seeded)."""
     e = sc.calibration
-    # mean norm of an isotropic 3-D Gaussian is 1.596 sigma
-    s_t = e.hand_eye_mean_mm * 1e-3 / 1.596
-    s_r = e.hand_eye_mean_deg / 1.596
+    # The paper's 2.35 mm / 0.74 deg are per-pose residuals on held-out marker poses, dominated
+    # by marker-pose noise; the refined transform X averages 30 poses, so its own error is the
+    # residual / sqrt(poses), times a conditioning factor. (A 2.35 mm error in X itself would
+    # contradict the paper's 1.22 mm absolute tip error.) Mean norm of a 3-D Gaussian = 1.596 sigma.
+    k = e.hand_eye_conditioning / np.sqrt(e.hand_eye_poses)
+    s_t = k * e.hand_eye_mean_mm * 1e-3 / 1.596
+    s_r = k * e.hand_eye_mean_deg / 1.596
     T = truth.T_base_camera.copy()
     T[:3, :3] = _small_rotation(rng, s_r) @ T[:3, :3]
     T[:3, 3] = T[:3, 3] + s_t * rng.normal(size=3)

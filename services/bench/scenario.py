@@ -91,8 +91,8 @@ class AccelConfig(_M):
     rate_hz: float = F(240.0, gt=1.0, le=2000.0)
     noise_sd_mps2: float = F(0.072, ge=0.0, le=2.0, description="per axis per sample: 0.30-0.55 deg tilt SD")
     noise_pose_spread: float = F(0.2, ge=0.0, le=1.0, description="relative spread of the noise SD across poses")
-    bias_sd_mps2: float = F(0.01, ge=0.0, le=1.0)
-    scale_sd: float = F(0.0003, ge=0.0, le=0.1, description="norm within 0.06 % of g")
+    bias_sd_mps2: float = F(0.002, ge=0.0, le=1.0, description="keeps the norm within 0.06 % of g")
+    scale_sd: float = F(0.0002, ge=0.0, le=0.1, description="norm within 0.06 % of g")
     pose_tilt_sd_deg: float = F(0.21, ge=0.0, le=10.0, description="pose-locked direction error (held out 0.21)")
     pose_corr_deg: float = F(6.0, gt=0.0, le=180.0)
     pose_corr_m: float = F(0.01, gt=0.0, le=1.0)
@@ -173,7 +173,7 @@ class VisionConfig(_M):
     gate_line_angle_deg: float = F(0.5, gt=0.0, le=10.0)
     gate_lateral_px: float = F(1.5, gt=0.0, le=50.0)
     gate_junction_px: float = F(4.0, gt=0.0, le=100.0)
-    metric_scale_rest: float = F(0.45, gt=0.0, le=10.0, description="gate metrics' spread, in gate thresholds")
+    metric_scale_rest: float = F(0.42, gt=0.0, le=10.0, description="gate metrics' spread, in gate thresholds")
     metric_scale_per_px: float = F(0.012, ge=0.0, le=1.0, description="growth per px/frame of image motion")
     wrong_seg_prob: float = F(0.04, ge=0.0, le=1.0)
     wrong_seg_deg: Vec2 = F((2.0, 6.0), description="range of a wrong line's error")
@@ -185,8 +185,10 @@ class VisionConfig(_M):
 class CalibrationErrorConfig(_M):
     """Sizes of the errors of the "as calibrated" constants."""
 
-    hand_eye_mean_mm: float = F(2.35, ge=0.0, le=100.0)
-    hand_eye_mean_deg: float = F(0.74, ge=0.0, le=30.0)
+    hand_eye_mean_mm: float = F(2.35, ge=0.0, le=100.0, description="held-out residual per marker pose (mean)")
+    hand_eye_mean_deg: float = F(0.74, ge=0.0, le=30.0, description="held-out residual per marker pose (mean)")
+    hand_eye_poses: int = F(30, ge=1, le=10000, description="poses the AX=XB refinement averages over")
+    hand_eye_conditioning: float = F(2.0, ge=1.0, le=100.0, description="error growth of X over residual/sqrt(poses)")
     rcm_sd_mm: float = F(0.03, ge=0.0, le=20.0)
     imu_mount_sd_deg: float = F(0.2, ge=0.0, le=20.0)
     imu_position_sd_mm: float = F(1.0, ge=0.0, le=50.0)
