@@ -107,7 +107,7 @@ def projected_axis_direction(geom: InstrumentGeometry, camera: CameraModel) -> n
     s0 = geom.s_junction
     p0 = geom.point(s0)
     if p0[2] < 1e-3:  # junction behind the camera: use the closest visible axis point
-        p0 = geom.point(_clip_axis_to_front(geom, geom.s_proximal, geom.s_junction, 1e-3)[1])
+        p0 = geom.point(clip_axis_to_front(geom.p_tip_cam_m, geom.axis_cam, geom.s_proximal, geom.s_junction, 1e-3)[1])
     d = geom.axis_cam
     # derivative of the projection along d (always defined for z > 0)
     dx = (d[:2] * p0[2] - p0[:2] * d[2]) / p0[2] ** 2
@@ -118,15 +118,16 @@ def projected_axis_direction(geom: InstrumentGeometry, camera: CameraModel) -> n
     return g / n
 
 
-def _clip_axis_to_front(geom: InstrumentGeometry, s_lo: float, s_hi: float, z_near: float) -> tuple[float, float]:
-    """Clip the axis interval [s_lo, s_hi] to z >= z_near (camera frame); may return lo > hi."""
-    z0, dz = geom.p_tip_cam_m[2], geom.axis_cam[2]
+def clip_axis_to_front(
+    p_axis_cam_m: np.ndarray, axis_cam: np.ndarray, s_lo: float, s_hi: float, z_near_m: float
+) -> tuple[float, float]:
+    """Clip the axis interval [s_lo, s_hi] (points p_axis + s axis) to z >= z_near_m in the camera
+    frame; the result has lo >= hi when nothing is left."""
+    z0, dz = p_axis_cam_m[2], axis_cam[2]
     if abs(dz) < 1e-12:
-        return (s_lo, s_hi) if z0 >= z_near else (1.0, 0.0)
-    s_z = (z_near - z0) / dz
-    if dz > 0:
-        return max(s_lo, s_z), s_hi
-    return s_lo, min(s_hi, s_z)
+        return (s_lo, s_hi) if z0 >= z_near_m else (1.0, 0.0)
+    s_z = (z_near_m - z0) / dz
+    return (max(s_lo, s_z), s_hi) if dz > 0 else (s_lo, min(s_hi, s_z))
 
 
 def _cylinder_hit(rays, p_axis, d, radius):

@@ -19,6 +19,7 @@ from services.bench.render_geometry import (
     PART_SHAFT,
     InstrumentGeometry,
     cast_instrument,
+    clip_axis_to_front,
     cylinder_shading_hits,
     silhouette_lines,
 )
@@ -67,7 +68,7 @@ def draw_cylinder_band(
     """Composite the cylinder piece s in [s_lo, s_hi] (axis point p_axis + s d, camera frame) over the
     canvas in place, edges from `lines` (left, right; undistorted pixels). Optionally max-accumulate
     its coverage into `coverage_out` (H, W). Returns the (rows, cols) of the pixels it drew."""
-    s_lo_v, s_hi_v = _clip_axis_to_front_raw(p_axis, d, s_lo, s_hi)
+    s_lo_v, s_hi_v = clip_axis_to_front(p_axis, d, s_lo, s_hi, Z_NEAR_M)
     if s_lo_v >= s_hi_v:
         return np.empty(0, np.int64), np.empty(0, np.int64)
     hc, wc = canvas.shape[:2]
@@ -156,14 +157,6 @@ def _line_in_image(scene: Scene, line: np.ndarray, rows: bool, major: np.ndarray
     md, nd = (vd, ud) if rows else (ud, vd)
     order = np.argsort(md)
     return np.interp(major, md[order], nd[order])
-
-
-def _clip_axis_to_front_raw(p_axis, d, s_lo, s_hi):
-    z0, dz = p_axis[2], d[2]
-    if abs(dz) < 1e-12:
-        return (s_lo, s_hi) if z0 >= Z_NEAR_M else (1.0, 0.0)
-    s_z = (Z_NEAR_M - z0) / dz
-    return (max(s_lo, s_z), s_hi) if dz > 0 else (s_lo, min(s_hi, s_z))
 
 
 def draw_jaws_region(

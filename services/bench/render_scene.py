@@ -131,9 +131,9 @@ def tissue_texture(h: int, w: int, texel_m: float, colour, strength: float, seed
     tex = np.empty((h, w, 3), np.float32)
     tex[:] = base
     fat = 0.6 * np.clip((_octave(rng, h, w, 25 * mm) - 0.68) * 4.0, 0.0, 1.0)[..., None]
-    deep = np.clip((_octave(rng, h, w, 18 * mm) - 0.55) * 3.0, 0.0, 1.0)[..., None]
+    deep = np.clip((_octave(rng, h, w, 18 * mm) - 0.5) * 2.0, 0.0, 1.0)[..., None]
     tex += fat * (FAT_RGB - tex)
-    tex += 0.7 * deep * (DEEP_RGB - tex)
+    tex += 0.55 * deep * (DEEP_RGB - tex)
     tex *= (0.78 + 0.44 * bright)[..., None]
     # vessels: smooth random walks, some branching, drawn anti-aliased and softened
     vessels = np.zeros((h, w), np.uint8)
