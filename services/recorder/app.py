@@ -11,6 +11,7 @@ import logging
 import shutil
 import threading
 from collections.abc import Sequence
+from pathlib import Path
 
 import zenoh
 
@@ -37,6 +38,7 @@ def serve(
     opener: Opener = open_file,
     disk_usage: DiskUsage = shutil.disk_usage,
     ready: threading.Event | None = None,
+    config_file: str | None = None,
 ) -> Recorder:
     """Run a recorder on `bus` until `stop` is set; returns it (finished) for inspection."""
     status_pub = bus.publisher(STATUS_TOPIC)
@@ -46,12 +48,16 @@ def serve(
         with status_lock:
             status_pub.put(st)
 
+    attachments = {}
+    if config_file:  # the system's YAML file as given, beside the resolved recorder section
+        attachments[Path(config_file).name] = (Path(config_file).read_bytes(), "application/yaml")
     rec = Recorder(
         config,
         opener=opener,
         disk_usage=disk_usage,
         on_status=publish_status,
         extra_metadata={"bus": {"prefix": bus.prefix, "bus_config": dump(bus.config)}},
+        extra_attachments=attachments,
     )
 
     def on_command(query: zenoh.Query) -> None:
@@ -80,7 +86,7 @@ def serve(
 
 
 def _body(ctx: ServiceContext[RecorderConfig]) -> None:
-    serve(ctx.bus, ctx.config, ctx.stop)
+    serve(ctx.bus, ctx.config, ctx.stop, config_file=getattr(ctx.args, "config", None))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -68,6 +68,7 @@ class RecordingFile:
     def __init__(self, path: Path, *, compression: str, chunk_size: int, opener: Opener = open_file):
         self.path = path
         self._raw = opener(path)
+        _fsync_dir(path.parent)  # the new name itself survives a power cut
         self._stream = _CheckedStream(self._raw)
         self.writer = McapWriter(self._stream, compression=compression, chunk_size=chunk_size)  # type: ignore[arg-type]
         self.good_offset = 0  # end of the last complete record written (a valid prefix)
@@ -112,6 +113,10 @@ class RecordingFile:
         self.writer.close()
         self._stream.flush()
         self.closed = True
+        try:
+            self._stream.fsync()
+        except (OSError, ValueError, AttributeError):  # a stream without a descriptor (tests)
+            pass
         self._raw.close()
 
     def salvage(self) -> bool:
@@ -139,3 +144,16 @@ class RecordingFile:
         except OSError as e:
             log.error("closing %s failed: %s", self.path, e)
         return ok
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

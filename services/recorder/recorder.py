@@ -83,6 +83,7 @@ class Recorder:
         disk_usage: DiskUsage = shutil.disk_usage,
         on_status: Callable[[recorder_pb2.RecorderStatus], None] | None = None,
         extra_metadata: dict[str, dict[str, Any]] | None = None,
+        extra_attachments: dict[str, tuple[bytes, str]] | None = None,
     ):
         self.config = config
         self.out_dir = Path(config.out_dir)
@@ -90,6 +91,7 @@ class Recorder:
         self._disk_usage = disk_usage
         self._on_status = on_status
         self._extra_metadata = extra_metadata or {}
+        self._extra_attachments = extra_attachments or {}  # name -> (data, media type)
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._lock = threading.Lock()  # counts, queue bounds, state fields read by status()
         self._queued_bytes = 0
@@ -273,8 +275,11 @@ class Recorder:
             return
         except (KeyError, ValueError) as e:  # unknown schema or a type change on a topic
             with self._lock:
-                self._counts[info.topic].dropped += 1
-            log.warning("cannot record %s: %s", info.topic, e)
+                c = self._counts[info.topic]
+                c.dropped += 1
+                first = c.dropped == 1
+            if first:  # once per topic and session: the counts carry the rest
+                log.warning("cannot record %s: %s", info.topic, e)
             return
         with self._lock:
             self._counts[info.topic].written += 1
@@ -401,6 +406,8 @@ class Recorder:
         f.add_metadata("configuration", {"recorder": dump(cfg)})
         for name, data in self._extra_metadata.items():
             f.add_metadata(name, data)
+        for name, (blob, media_type) in self._extra_attachments.items():
+            f.add_attachment(name, blob, media_type, now_ns())
         if cfg.calibration_file:
             p = Path(cfg.calibration_file)
             try:
