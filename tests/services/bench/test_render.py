@@ -247,3 +247,24 @@ def test_truth_masks_equal_a_whole_frame_cast(camera):
                                             params.junction_from_tip_mm * 1e-3, params.shaft_length_m)  # fmt: skip
         shaft, jaws = instrument_masks(get_scene(camera, params), geom, truth["line_left"], truth["line_right"])
         assert np.array_equal(shaft, truth["mask"]) and np.array_equal(jaws, truth["jaws_mask"])
+
+
+def test_left_and_right_as_seen_towards_the_tip():
+    # camera looking down, the shaft leaning so that its tip points up the image: left is smaller u
+    truth: dict = {}
+    render_frame(PINHOLE, look_down_pose([0.0, 0.02, 0.25], 28.6, 270.0), RenderParams(**CLEAN),
+                 np.random.default_rng(0), truth)  # fmt: skip
+    v = truth["junction_px"][1] + 60.0
+    u_left = -(truth["line_left"][1] * v + truth["line_left"][2]) / truth["line_left"][0]
+    u_right = -(truth["line_right"][1] * v + truth["line_right"][2]) / truth["line_right"][0]
+    assert truth["tip_px"][1] < truth["junction_px"][1]
+    assert u_left < u_right
+
+
+def test_jaws_lie_between_junction_and_tip():
+    truth: dict = {}
+    render_frame(D405, POSES[1], RenderParams(**CLEAN), np.random.default_rng(0), truth)
+    iy, ix = np.nonzero(truth["jaws_mask"])
+    j, t = truth["junction_px_distorted"], truth["tip_px_distorted"]
+    along = ((np.stack([ix, iy], -1) - j) @ (t - j)) / ((t - j) @ (t - j))
+    assert along.min() > -0.3 and along.max() < 1.2 and 0.2 < along.mean() < 0.8
