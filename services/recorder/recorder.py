@@ -366,6 +366,9 @@ class Recorder:
         try:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             path = self.out_dir / f"{self.session}_{self.file_index:03d}.mcap"
+            while path.exists():  # a session name used before: never overwrite a recording
+                self.file_index += 1
+                path = self.out_dir / f"{self.session}_{self.file_index:03d}.mcap"
             f = RecordingFile(
                 path, compression=self.config.compression, chunk_size=self.config.chunk_size_bytes, opener=self._opener
             )

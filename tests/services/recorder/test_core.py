@@ -250,3 +250,40 @@ def test_unwritable_directory_raises_alarm_and_stays_up(tmp_path):
     finally:
         rec.close()
     assert read_summary(blocker / "rec" / "u_000.mcap").statistics.message_count == 0
+
+
+@pytest.mark.parametrize("limit", [{"max_file_bytes": 40_000}, {"max_file_duration_s": 0.005}])
+def test_automatic_split_by_size_and_duration_loses_nothing(tmp_path, limit):
+    rec = Recorder(cfg(tmp_path, chunk_size_bytes=64 * 1024, **limit))
+    rec.start_thread()
+    try:
+        assert rec.command(cmd(A.RECORDER_ACTION_START, session="s")).ok
+        for k in range(3000):
+            rec.on_sample(gyro(k), info(k))
+            if k % 500 == 0:
+                rec.command(cmd(A.RECORDER_ACTION_STATUS))
+        assert rec.command(cmd(A.RECORDER_ACTION_MARK, "sync")).ok  # the writer has drained
+        assert rec.command(cmd(A.RECORDER_ACTION_STOP)).ok
+    finally:
+        rec.close()
+    files = sorted(tmp_path.glob("s_*.mcap"), key=lambda f: int(f.stem.split("_")[1]))
+    assert len(files) > 1
+    seqs = [r.sequence for f in files for r in read_messages(f)]
+    assert seqs == list(range(3000))
+    if "max_file_bytes" in limit:  # a file ends at the first flush past the limit
+        assert all(f.stat().st_size < 40_000 + 64 * 1024 + 20_000 for f in files)
+
+
+def test_a_session_name_used_twice_never_overwrites(tmp_path):
+    rec = Recorder(cfg(tmp_path))
+    rec.start_thread()
+    try:
+        for k in range(2):
+            assert rec.command(cmd(A.RECORDER_ACTION_START, session="same")).ok
+            rec.on_sample(gyro(k), info(k))
+            assert rec.command(cmd(A.RECORDER_ACTION_STOP)).ok
+    finally:
+        rec.close()
+    files = sorted(tmp_path.glob("same_*.mcap"))
+    assert [f.name for f in files] == ["same_000.mcap", "same_001.mcap"]
+    assert [[r.sequence for r in read_messages(f)] for f in files] == [[0], [1]]
