@@ -5,10 +5,11 @@ Geometry is exact: the shaft's long silhouette edges are drawn with analytic cov
 clip(0.5 + d, 0, 1) of the signed pixel distance d to the tangent lines (the images of the
 planes through the camera centre tangent to the shaft cylinder), so the 50 % level and the
 gradient maximum of every edge lie on the analytic line before blur and noise; the jaws and the
-junction are 4x4 supersampled. Pipeline per frame, all in float32:
+junction are ray cast, 4x4 supersampled where the surface hit changes between pixels.
+Pipeline per frame, float32 digital numbers (exposure is locked: a fixed gain, folded with the
+vignetting into everything drawn):
   precomputed lit floor -> shaft band, jaws -> occluder (blob or second instrument, by chance)
-  -> smoke (by chance) -> Gaussian defocus -> vignetting x locked exposure -> shot + read noise
-  -> uint8.
+  -> smoke (by chance) -> Gaussian defocus (global) -> shot + read noise -> uint8.
 Lens distortion is exact rather than resampled: the frame is drawn on the distorted pixel grid
 and each pixel's geometry is evaluated at its exact undistorted coordinates (precomputed rays).
 The floor, its texture, the per-pixel rays and the gain maps are built once per (camera, scene
