@@ -43,11 +43,12 @@ class InstrumentGeometry:
         T = np.asarray(T_camera_tool, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"T_camera_tool must be a finite 4x4 matrix (got shape {T.shape})")
-        axis = T[:3, 2]
-        n = np.linalg.norm(axis)
-        if not 0.99 < n < 1.01:
-            raise ValueError(f"T_camera_tool rotation is not orthonormal (|z axis| = {n:.4f})")
-        return cls(T[:3, 3].copy(), axis / n, shaft_radius_m, jaw_radius_m, junction_m, shaft_length_m)
+        R = T[:3, :3]
+        err = float(np.abs(R.T @ R - np.eye(3)).max())
+        if err > 1e-3:
+            raise ValueError(f"T_camera_tool rotation is not orthonormal (max |R^T R - I| = {err:.2e})")
+        axis = R[:, 2] / np.linalg.norm(R[:, 2])
+        return cls(T[:3, 3].copy(), axis, shaft_radius_m, jaw_radius_m, junction_m, shaft_length_m)
 
     def point(self, s_m: float | np.ndarray) -> np.ndarray:
         """Axis point(s) at s [m] from the tip, camera frame [m]."""

@@ -197,6 +197,11 @@ def test_bad_poses_are_rejected():
     with pytest.raises(ValueError, match="4x4"):
         render_frame(PINHOLE, np.eye(3), RenderParams(), np.random.default_rng(0))
     T = np.eye(4)
+    T[:3, :3] *= 1.1
+    T[:3, 3] = [0.0, 0.0, 0.2]
+    with pytest.raises(ValueError, match="orthonormal"):
+        render_frame(PINHOLE, T, RenderParams(), np.random.default_rng(0))
+    T = np.eye(4)
     T[:3, 3] = [0.001, 0.0, 0.1]  # shaft axis through (nearly) the camera centre
     with pytest.raises(ValueError, match="inside"):
         render_frame(PINHOLE, T, RenderParams(), np.random.default_rng(0))
