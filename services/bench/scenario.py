@@ -90,7 +90,8 @@ class GyroConfig(_M):
 class AccelConfig(_M):
     rate_hz: float = F(240.0, gt=1.0, le=2000.0)
     noise_sd_mps2: float = F(0.072, ge=0.0, le=2.0, description="per axis per sample: 0.30-0.55 deg tilt SD")
-    noise_pose_spread: float = F(0.2, ge=0.0, le=1.0, description="relative spread of the noise SD across poses")
+    noise_pose_spread: float = F(0.15, ge=0.0, le=1.0, description="relative spread of the noise SD across poses")
+    noise_factor_range: Vec2 = F((0.73, 1.29), description="clip of that factor: 0.30-0.55 deg across holds")
     bias_sd_mps2: float = F(0.002, ge=0.0, le=1.0, description="keeps the norm within 0.06 % of g")
     scale_sd: float = F(0.0002, ge=0.0, le=0.1, description="norm within 0.06 % of g")
     pose_tilt_sd_deg: float = F(0.21, ge=0.0, le=10.0, description="pose-locked direction error (held out 0.21)")
@@ -109,6 +110,7 @@ class TofConfig(_M):
     rate_hz: float = F(100.0, gt=1.0, le=1000.0)
     noise_sd_mm: float = F(3.2, ge=0.0, le=50.0, description="per sample, 2.95-3.43 mm")
     noise_pose_spread: float = F(0.05, ge=0.0, le=1.0)
+    noise_factor_range: Vec2 = F((0.92, 1.07), description="clip of that factor: 2.95-3.43 mm across holds")
     pose_sd_mm: float = F(3.04, ge=0.0, le=50.0, description="pose-locked systematic error across poses")
     pose_corr_deg: float = F(4.0, gt=0.0, le=180.0)
     pose_corr_m: float = F(0.008, gt=0.0, le=1.0)

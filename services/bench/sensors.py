@@ -182,7 +182,7 @@ def accel(kin: Kinematics, sc: Scenario, const: BenchConstants, clock: DeviceClo
         decay = np.exp(-(ts[after] - c.self_recal_jump_time_s) / c.self_recal_settle_tau_s)
         norm_gain[after] = 1.0 + c.self_recal_settle_frac + (c.self_recal_jump_frac - c.self_recal_settle_frac) * decay
     scale = 1.0 + c.scale_sd * rng.normal(size=3)
-    sd = c.noise_sd_mps2 * np.clip(1.0 + pose_field_at(spread, kin, t)[:, 0], 0.3, None)
+    sd = c.noise_sd_mps2 * np.clip(1.0 + pose_field_at(spread, kin, t)[:, 0], *c.noise_factor_range)
     vals = f * scale * norm_gain[:, None] + c.bias_sd_mps2 * rng.normal(size=3) + sd[:, None] * rng.normal(size=f.shape)
     arr = arrival(t, c.latency_ms, c.latency_jitter_ms, rng)
     return Stream("accel", t, dev, arr, vals)
@@ -198,7 +198,7 @@ def tof(kin: Kinematics, sc: Scenario, const: BenchConstants, clock: DeviceClock
     rho_mm = const.tof_range_m(R, p) * 1e3
     fld = PoseField(rng, 1, c.pose_sd_mm, np.radians(c.pose_corr_deg), c.pose_corr_m)
     spread = PoseField(rng, 1, c.noise_pose_spread, np.radians(c.pose_corr_deg), c.pose_corr_m)
-    sd = c.noise_sd_mm * np.clip(1.0 + pose_field_at(spread, kin, t)[:, 0], 0.3, None)
+    sd = c.noise_sd_mm * np.clip(1.0 + pose_field_at(spread, kin, t)[:, 0], *c.noise_factor_range)
     meas = rho_mm + pose_field_at(fld, kin, t)[:, 0] + ou_process(rng, t * 1e-9, c.repeat_sd_mm, c.repeat_tau_s)
     meas = meas + sd * rng.normal(size=len(t))
     status = np.full(len(t), TofStatus.TOF_STATUS_VALID, dtype=np.int32)
