@@ -29,6 +29,8 @@ Z_NEAR_M = 0.005
 BAND_MARGIN_PX = 2.0
 SUPERSAMPLE = 4
 JAW_GROOVE_M = 0.12e-3
+BLOOD_RGB = np.array([0.38, 0.04, 0.06])
+TISSUE_FLAP_RGB = np.array([0.80, 0.42, 0.40])
 
 
 @dataclass(frozen=True)
@@ -274,9 +276,13 @@ def draw_blob(canvas, coverage_out, scene: Scene, geom: InstrumentGeometry, rng:
                 cv2.LINE_AA, 4)  # fmt: skip
     h, w = mask.shape
     sl = np.s_[y0:y1, x0:x1]
-    alpha = mask.astype(np.float32) / 255.0
-    colour = np.array([rng.uniform(0.45, 0.85), rng.uniform(0.08, 0.35), rng.uniform(0.08, 0.3)], np.float32)
-    shade_f = (0.85 + 0.15 * cv2.GaussianBlur(rng.random((h, w), dtype=np.float32), (0, 0), 3.0))[..., None]
+    alpha = cv2.GaussianBlur(mask.astype(np.float32) / 255.0, (0, 0), 1.2)
+    # blood or a tissue flap, domed (brighter where it is thick) and mottled
+    base = BLOOD_RGB if rng.random() < 0.4 else TISSUE_FLAP_RGB
+    colour = (base * rng.uniform(0.8, 1.1, 3)).astype(np.float32)
+    dome = cv2.GaussianBlur(alpha, (0, 0), max(2.0, 0.25 * float(axes.min())))
+    mottle = cv2.GaussianBlur(rng.random((h, w), dtype=np.float32), (0, 0), 3.0)
+    shade_f = (0.55 + 0.45 * dome * (0.85 + 0.3 * mottle))[..., None]
     canvas[sl] += alpha[..., None] * (colour * shade_f * scene.gain_dn[sl][..., None] - canvas[sl])
     coverage_out[sl] = np.maximum(coverage_out[sl], alpha)
 
