@@ -38,6 +38,9 @@ class MotionConfig(BaseModel):
     working_depth_mm: tuple[float, float] = Field((130.0, 150.0), description="depth range the operator keeps")
     tilt_envelope_deg: float = Field(10.0, ge=1.0, le=45.0, description="tilt range the operator keeps")
     camera_rpy_deg: Vec3 = Field((180.0, 0.0, -90.0), description="R_base_camera as roll, pitch, yaw")
+    command_camera_error_deg: Vec3 = Field(
+        (0.0, 0.0, 0.0), description="hand-eye rotation error (rpy) in the R_base_camera used to command trials"
+    )
     camera_distance_m: float = Field(0.25, ge=0.05, le=1.0, description="camera centre to neutral tip, along its z")
     tip_speed_limit_mmps: float = Field(50.0, gt=0.0, le=200.0)
     speed_fraction: float = Field(0.8, gt=0.0, le=1.0, description="fraction of the limit programmed moves use")
@@ -144,7 +147,7 @@ def _context(cfg: MotionConfig) -> protocols.ProtocolContext:
     return protocols.ProtocolContext(
         r_m=np.asarray(cfg.rcm_base_m, float),
         R_neutral=cfg.R_neutral(),
-        R_base_camera=cfg.R_base_camera(),
+        R_base_camera=cfg.R_base_camera() @ rpy_to_matrix(np.deg2rad(cfg.command_camera_error_deg)),
         depth_m=cfg.depth_mm * 1e-3,
         rate_hz=cfg.rate_hz,
         tip_speed_max_mps=cfg.tip_speed_limit_mmps * 1e-3,
