@@ -86,7 +86,17 @@ class Command:
     trials: list[dict] = field(default_factory=list)
 
     def truncate(self, n: int) -> Command:
-        keep = [t for t in self.trials if t["pre_start"] < n]
+        """The first n samples; trials that start inside are kept, their windows clipped to n and
+        flagged complete=False when cut."""
+        keep = []
+        for t in self.trials:
+            if t["pre_start"] >= n:
+                continue
+            t = dict(t)
+            t["complete"] = t["post_end"] <= n
+            for key in ("pre_start", "pre_end", "move_start", "move_end", "post_start", "post_end"):
+                t[key] = min(t[key], n)
+            keep.append(t)
         return Command(self.p_raw_m[:n], self.roll_rad[:n], self.trial[:n], self.phase[:n], keep)
 
 
@@ -163,6 +173,7 @@ class _Builder:
                 move_end=move[1],
                 post_start=post[0],
                 post_end=post[1],
+                complete=True,
                 **extra,
             )
         )

@@ -158,6 +158,7 @@ def test_simulate_interface() -> None:
     np.testing.assert_allclose(gt.depth_m()[0], 0.140, atol=1e-9)
     assert gt.rcm_error_m()[0] < 1e-9
     assert gt.meta["protocol"] == "fit" and len(gt.trials) == 1
+    assert gt.trials[0]["complete"] is False and gt.trials[0]["post_end"] == n
     with pytest.raises(ValueError, match="protocol"):
         simulate(CFG, "nope", seed=0, duration_s=1.0)
     with pytest.raises(ValueError, match="duration_s"):
