@@ -70,7 +70,11 @@ class RecordingFile:
         self._raw = opener(path)
         _fsync_dir(path.parent)  # the new name itself survives a power cut
         self._stream = _CheckedStream(self._raw)
-        self.writer = McapWriter(self._stream, compression=compression, chunk_size=chunk_size)  # type: ignore[arg-type]
+        try:
+            self.writer = McapWriter(self._stream, compression=compression, chunk_size=chunk_size)  # type: ignore[arg-type]
+        except BaseException:  # not even the header fits: leave no open descriptor behind
+            self._raw.close()
+            raise
         self.good_offset = 0  # end of the last complete record written (a valid prefix)
         self.written_by_topic: dict[str, int] = {}
         self.first_log_ns: int | None = None
