@@ -141,7 +141,9 @@ def simulate_vision(kin: Kinematics, sc: Scenario, const: BenchConstants, rng: n
     shaft_ok = (L_vis >= v.min_visible_px) & np.all(np.isfinite(n_l0), 1) & (J_c[:, 2] > 0)
 
     # consistency gate: measures spread wider with image motion (blur, segmentation lag)
-    J_next = (_interp(t + int(1e9 / cam.fps), kin.t_ns, kin.p_tip_base_m) - c) @ A.T
+    t_next = np.minimum(t + int(1e9 / cam.fps), kin.t_ns[-1])
+    u_next = _interp_R(t_next, kin.t_ns, kin.R_base_tool)[:, :, 2]
+    J_next = (_interp(t_next, kin.t_ns, kin.p_tip_base_m) - const.junction_proximal_m * u_next - c) @ A.T
     speed = np.nan_to_num(np.linalg.norm(_project_undist(sc, J_next) - _project_undist(sc, J_c), axis=1))
     s = v.metric_scale_rest * (1.0 + v.metric_scale_per_px * np.minimum(speed, 500.0))
     line_angle = np.abs(rng.normal(size=n)) * s * v.gate_line_angle_deg
