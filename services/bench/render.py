@@ -29,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from services.bench.render_geometry import InstrumentGeometry, silhouette_lines
 from services.bench.render_instrument import (
     Material,
+    defocus_sigma_px,
     draw_blob,
     draw_cylinder_band,
     draw_jaws_region,
@@ -78,6 +79,13 @@ class RenderParams(BaseModel):
     light_pos_cam_m: tuple[float, float, float] = (0.04, -0.08, 0.0)
     ambient: Unit = 0.3
     blur_sigma_px: float = Field(0.8, ge=0.0, le=4.0, description="global defocus, Gaussian sigma")
+    focus_distance_m: float = Field(0.25, gt=0.02, le=5.0)
+    defocus_px_per_dioptre: float = Field(
+        0.0,
+        ge=0.0,
+        le=5.0,
+        description="extra depth-dependent blur of the instrument: sigma per dioptre of focus error",
+    )
     vignetting: Unit = 0.35
     # sensor: exposure is locked (a fixed gain, no auto exposure)
     exposure: float = Field(1.0, gt=0.0, le=8.0)
@@ -159,6 +167,7 @@ def render_frame(
     shaft_mat = Material(np.asarray(params.shaft_albedo), params.shaft_specular, params.shaft_shininess)
     jaw_mat = Material(np.asarray(params.jaw_albedo), params.jaw_specular, params.jaw_shininess)
 
+    defocus = (params.focus_distance_m, params.defocus_px_per_dioptre) if params.defocus_px_per_dioptre > 0 else None
     canvas = scene.floor_dn.copy()
     band = draw_cylinder_band(
         canvas,
@@ -172,10 +181,13 @@ def render_frame(
         shaft_mat,
         light,
         params.ambient,
+        defocus=defocus,
     )
     box = draw_jaws_region(
         canvas, scene, geom, np.asarray(T_camera_tool, float)[:3, 1], shaft_mat, jaw_mat, light, params.ambient
     )
+    if box is not None:
+        _defocus_box(canvas, box, float(defocus_sigma_px(geom.point(geom.s_junction)[2], defocus)))
 
     occlusion, occ_cov = "none", None
     if rng.random() < params.occlusion_probability:
@@ -213,6 +225,17 @@ def render_frame(
             rows, cols = np.concatenate([rows, bi.ravel()]), np.concatenate([cols, bj.ravel()])
         _fill_truth(truth_out, scene, camera, geom, (rows, cols), line_l, line_r, n_l, n_r, occlusion, occ_cov, smoke)
     return img
+
+
+def _defocus_box(canvas: np.ndarray, box: tuple[slice, slice], sigma_px: float) -> None:
+    """Blur the jaws' box (and a margin) by the defocus at the junction's depth, in place."""
+    if sigma_px < 0.1:
+        return
+    m = int(np.ceil(3 * sigma_px))
+    h, w = canvas.shape[:2]
+    i0, i1 = max(0, box[0].start - m), min(h, box[0].stop + m)
+    j0, j1 = max(0, box[1].start - m), min(w, box[1].stop + m)
+    canvas[i0:i1, j0:j1] = cv2.GaussianBlur(canvas[i0:i1, j0:j1], (0, 0), sigma_px)
 
 
 def _add_smoke(canvas: np.ndarray, scene: Scene, rng: np.random.Generator, density: float) -> None:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.special import ndtr
 
 from services.bench.render_geometry import (
     PART_END_FACE,
@@ -29,6 +30,7 @@ Z_NEAR_M = 0.005
 BAND_MARGIN_PX = 2.0
 SUPERSAMPLE = 4
 JAW_GROOVE_M = 0.12e-3
+MAX_DEFOCUS_PX = 8.0
 BLOOD_RGB = np.array([0.38, 0.04, 0.06])
 TISSUE_FLAP_RGB = np.array([0.80, 0.42, 0.40])
 
@@ -64,19 +66,44 @@ def _axis_px(scene: Scene, p: np.ndarray) -> np.ndarray:
     return np.array([c.fx * p[0] / p[2] + c.cx, c.fy * p[1] / p[2] + c.cy])
 
 
+def defocus_sigma_px(z_m, defocus) -> np.ndarray:
+    """Extra Gaussian defocus [px] at depth z [m] for defocus = (focus distance [m], sigma [px] per
+    dioptre of focus error), capped at MAX_DEFOCUS_PX; zero without defocus."""
+    if defocus is None or defocus[1] <= 0:
+        return np.zeros_like(np.asarray(z_m, float))
+    focus_m, per_dioptre = defocus
+    return np.minimum(per_dioptre * np.abs(1.0 / np.asarray(z_m, float) - 1.0 / focus_m), MAX_DEFOCUS_PX)
+
+
 def draw_cylinder_band(
-    canvas, scene: Scene, p_axis, d, radius, s_lo, s_hi, lines, mat: Material, light, ambient, coverage_out=None
+    canvas,
+    scene: Scene,
+    p_axis,
+    d,
+    radius,
+    s_lo,
+    s_hi,
+    lines,
+    mat: Material,
+    light,
+    ambient,
+    coverage_out=None,
+    defocus=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Composite the cylinder piece s in [s_lo, s_hi] (axis point p_axis + s d, camera frame) over the
     canvas in place, edges from `lines` (left, right; undistorted pixels). Optionally max-accumulate
-    its coverage into `coverage_out` (H, W). Returns the (rows, cols) of the pixels it drew."""
+    its coverage into `coverage_out` (H, W). With `defocus` (see defocus_sigma_px), the long edges
+    are the Gaussian-blurred step of the local depth's sigma, still centred on the lines.
+    Returns the (rows, cols) of the pixels it drew."""
     s_lo_v, s_hi_v = clip_axis_to_front(p_axis, d, s_lo, s_hi, Z_NEAR_M)
     if s_lo_v >= s_hi_v:
         return np.empty(0, np.int64), np.empty(0, np.int64)
     hc, wc = canvas.shape[:2]
     e0, e1 = p_axis + s_lo_v * d, p_axis + s_hi_v * d
     q0, q1 = _axis_px(scene, e0), _axis_px(scene, e1)
-    r_px = radius * max(scene.camera.fx, scene.camera.fy) / min(e0[2], e1[2]) + 3.0 + scene.max_shift_px
+    sig_max = float(np.max(defocus_sigma_px(np.array([e0[2], e1[2]]), defocus)))
+    margin = BAND_MARGIN_PX + 3.0 * sig_max
+    r_px = radius * max(scene.camera.fx, scene.camera.fy) / min(e0[2], e1[2]) + 3.0 + scene.max_shift_px + 3 * sig_max
     g = q1 - q0
     rows = abs(g[1]) >= abs(g[0])
     major_n, minor_n = (hc, wc) if rows else (wc, hc)
@@ -93,7 +120,7 @@ def draw_cylinder_band(
         a_min = line[0] if rows else line[1]
         if abs(a_min) < 0.2:  # steep against the scan: bound it loosely, as a half-plane
             a_maj = line[1] if rows else line[0]
-            rhs = -BAND_MARGIN_PX - scene.max_shift_px - a_maj * major - line[2]
+            rhs = -margin - scene.max_shift_px - a_maj * major - line[2]
             if a_min > 1e-9:
                 lo = np.maximum(lo, rhs / a_min)
             elif a_min < -1e-9:
@@ -103,9 +130,9 @@ def draw_cylinder_band(
             continue
         pos = _line_in_image(scene, line, rows, major)  # where the (distorted) line crosses each scan
         if a_min > 0:
-            lo = np.maximum(lo, pos - (BAND_MARGIN_PX + 1.0) / a_min)
+            lo = np.maximum(lo, pos - (margin + 1.0) / a_min)
         else:
-            hi = np.minimum(hi, pos - (BAND_MARGIN_PX + 1.0) / a_min)
+            hi = np.minimum(hi, pos - (margin + 1.0) / a_min)
     lo, hi = np.floor(lo).astype(np.int64), np.ceil(hi).astype(np.int64)
     width = int((hi - lo + 1).max())
     if width <= 0:
@@ -117,11 +144,14 @@ def draw_cylinder_band(
     ii, jj = (major_i, minor) if rows else (minor, major_i)
     u, v = scene.u_und[ii, jj], scene.v_und[ii, jj]
     dist = np.minimum(cl[0][0] * u + cl[0][1] * v + cl[0][2], cl[1][0] * u + cl[1][1] * v + cl[1][2])
-    cov = np.clip(0.5 + dist, 0.0, 1.0)
-    keep = cov > 0
-    ii, jj, cov = ii[keep], jj[keep], cov[keep]
+    keep = dist > -0.5 - 3.0 * sig_max
+    ii, jj, dist = ii[keep], jj[keep], dist[keep]
     rays = scene.pixel_rays(ii, jj)
     p, normal, s = cylinder_shading_hits(rays, p_axis, d, radius)
+    if sig_max > 0:  # box pixel (variance 1/12) convolved with the defocus at the silhouette's depth
+        cov = ndtr(dist / np.sqrt(defocus_sigma_px(p[:, 2], defocus) ** 2 + 1.0 / 12.0))
+    else:
+        cov = np.clip(0.5 + dist, 0.0, 1.0)
     # soft axial ends: metres of axis per pixel at each visible end
     for s_end, sign in ((s_hi, 1.0), (s_lo, -1.0)):
         if s_lo_v <= s_end <= s_hi_v:

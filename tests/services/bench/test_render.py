@@ -273,3 +273,20 @@ def test_jaws_lie_between_junction_and_tip():
     j, t = truth["junction_px_distorted"], truth["tip_px_distorted"]
     along = ((np.stack([ix, iy], -1) - j) @ (t - j)) / ((t - j) @ (t - j))
     assert along.min() > -0.3 and along.max() < 1.2 and 0.2 < along.mean() < 0.8
+
+
+def test_depth_dependent_defocus_blurs_but_keeps_edges_on_the_lines():
+    truth: dict = {}
+    base = dict(blur_sigma_px=0.0, texture_strength=0.0, focus_distance_m=0.6, **CLEAN)
+    sharp = render_frame(PINHOLE, POSES[0], RenderParams(**base), np.random.default_rng(0))
+    # about 0.3 px at the tip, 1.2 px where the shaft leaves the frame nearest the camera
+    params = RenderParams(defocus_px_per_dioptre=0.15, **base)
+    soft = render_frame(PINHOLE, POSES[0], params, np.random.default_rng(0), truth)
+    assert (np.abs(soft.astype(int) - sharp.astype(int)).max(axis=2) > 5).sum() > 500
+    g = gray(soft)
+    for name in ("line_left", "line_right"):
+        err = edge_errors_px(g, truth[name], truth, exclude_px=40.0)
+        # the wider edge mixes in the shading just inside the silhouette: a little looser than sharp
+        assert len(err) > 50
+        assert np.max(np.abs(err)) < 0.25, (name, np.max(np.abs(err)))
+        assert abs(np.mean(err)) < 0.06, (name, np.mean(err))
