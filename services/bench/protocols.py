@@ -1,25 +1,31 @@
 """Motion protocols of the paper's experiments as commanded tip targets for the RCM servo.
 
-Every protocol returns a `Command`: raw tip targets p_raw (N, 3) [m, base] and a roll angle about
-the shaft (N,) [rad] at the servo rate, with per-sample trial index and phase and a list of trial
-descriptions. Rates are taken by the caller with central differences (all profiles are smooth).
-Poses are written as (pitch, yaw, depth, roll) about the neutral shaft: the tip is
-r + L exp(pitch a_p + yaw a_y) u0, with a_p horizontal (positive pitch tilts the shaft further
-from vertical) and a_y = u0 x a_p. Moves are minimum-jerk; each protocol starts and ends at the
-neutral pose with the tip at rest.
+Each protocol returns a `trajectory.Command` (tip targets and roll at the servo rate, trial
+index and phase per sample, trial descriptions); rates are taken by the caller with central
+differences (all profiles are smooth). Every protocol starts and ends at the neutral pose with
+the tip at rest; trials are minimum-jerk moves about the RCM between 3 s stationary windows.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from tiplog.geometry import so3_exp
-
-FREE, PRE, MOVE, POST, HOLD = 0, 1, 2, 3, 4
-PHASE_NAMES = {FREE: "free", PRE: "pre", MOVE: "move", POST: "post", HOLD: "hold"}
+from services.bench.trajectory import (  # noqa: F401  (re-exported for callers)
+    FREE,
+    HOLD,
+    MOVE,
+    PHASE_NAMES,
+    POST,
+    PRE,
+    Builder,
+    Command,
+    ProtocolContext,
+    concat,
+    min_jerk,
+    oscillation,
+    taper,
+)
 
 WINDOW_S = 3.0  # stationary windows before and after each trial
 TRANSLATION_DEPTH_M = 0.130
@@ -43,149 +49,9 @@ LATENCY_FREQS_HZ = {
 TELEOP_BLOCK_S = 120.0
 
 
-@dataclass(frozen=True)
-class ProtocolContext:
-    """Bench geometry and limits the protocols need (SI units, base frame)."""
-
-    r_m: np.ndarray
-    R_neutral: np.ndarray
-    R_base_camera: np.ndarray
-    depth_m: float = 0.140
-    rate_hz: float = 1000.0
-    tip_speed_max_mps: float = 0.05
-    speed_fraction: float = 0.8
-    roll_rate_max_radps: float = np.deg2rad(60.0)
-    min_move_s: float = 1.5
-    working_depth_m: tuple[float, float] = (0.130, 0.150)
-    tilt_envelope_rad: float = np.deg2rad(10.0)
-
-    @property
-    def u0(self) -> np.ndarray:
-        return self.R_neutral[:, 2]
-
-    @property
-    def a_pitch(self) -> np.ndarray:
-        u0 = self.u0
-        h = np.array([u0[1], -u0[0], 0.0])  # horizontal, perpendicular to u0
-        n = np.linalg.norm(h)
-        return h / n if n > 1e-9 else self.R_neutral[:, 1]
-
-    @property
-    def a_yaw(self) -> np.ndarray:
-        return np.cross(self.u0, self.a_pitch)
-
-
-@dataclass
-class Command:
-    """Commanded tip targets p_raw_m (N, 3), roll_rad (N,), trial (N,) int32, phase (N,) uint8."""
-
-    p_raw_m: np.ndarray
-    roll_rad: np.ndarray
-    trial: np.ndarray
-    phase: np.ndarray
-    trials: list[dict] = field(default_factory=list)
-
-    def truncate(self, n: int) -> Command:
-        """The first n samples; trials that start inside are kept, their windows clipped to n and
-        flagged complete=False when cut."""
-        keep = []
-        for t in self.trials:
-            if t["pre_start"] >= n:
-                continue
-            t = dict(t)
-            t["complete"] = t["post_end"] <= n
-            for key in ("pre_start", "pre_end", "move_start", "move_end", "post_start", "post_end"):
-                t[key] = min(t[key], n)
-            keep.append(t)
-        return Command(self.p_raw_m[:n], self.roll_rad[:n], self.trial[:n], self.phase[:n], keep)
-
-
-def min_jerk(n: int) -> np.ndarray:
-    """Minimum-jerk progress s in [0, 1] over n samples (s[0] = 0, s[-1] = 1)."""
-    tau = np.linspace(0.0, 1.0, n) if n > 1 else np.ones(1)
-    return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
-
-
-class _Builder:
-    """Appends segments of (pitch, yaw, depth, roll) poses or Cartesian targets."""
-
-    def __init__(self, ctx: ProtocolContext) -> None:
-        self.ctx = ctx
-        self.pose = np.array([0.0, 0.0, ctx.depth_m, 0.0])
-        self.p: list[np.ndarray] = []
-        self.roll: list[np.ndarray] = []
-        self.trial: list[np.ndarray] = []
-        self.phase: list[np.ndarray] = []
-        self.trials: list[dict] = []
-        self.n = 0
-
-    def tip(self, poses: np.ndarray) -> np.ndarray:
-        c = self.ctx
-        rotvec = poses[:, :1] * c.a_pitch + poses[:, 1:2] * c.a_yaw
-        return c.r_m + poses[:, 2:3] * (so3_exp(rotvec) @ c.u0)
-
-    def n_of(self, seconds: float) -> int:
-        return max(1, int(round(seconds * self.ctx.rate_hz)))
-
-    def add_cart(self, p: np.ndarray, roll: np.ndarray, phase: int, trial: int = -1) -> tuple[int, int]:
-        start = self.n
-        self.p.append(np.asarray(p, float))
-        self.roll.append(np.asarray(roll, float))
-        self.trial.append(np.full(len(p), trial, np.int32))
-        self.phase.append(np.full(len(p), phase, np.uint8))
-        self.n += len(p)
-        return start, self.n
-
-    def add_poses(self, poses: np.ndarray, phase: int, trial: int = -1) -> tuple[int, int]:
-        self.pose = poses[-1].copy()
-        return self.add_cart(self.tip(poses), poses[:, 3], phase, trial)
-
-    def hold(self, seconds: float, phase: int, trial: int = -1) -> tuple[int, int]:
-        return self.add_poses(np.repeat(self.pose[None], self.n_of(seconds), 0), phase, trial)
-
-    def move_time(self, target: np.ndarray, extra_m: float = 0.0) -> float:
-        c = self.ctx
-        d = target - self.pose
-        path_m = max(self.pose[2], target[2]) * np.hypot(d[0], d[1]) + abs(d[2]) + extra_m
-        return max(
-            c.min_move_s,
-            1.875 * path_m / (c.speed_fraction * c.tip_speed_max_mps),
-            1.875 * abs(d[3]) / c.roll_rate_max_radps,
-        )
-
-    def move(self, target, phase: int, trial: int = -1, seconds: float | None = None) -> tuple[int, int]:
-        target = np.asarray(target, float)
-        T = seconds if seconds is not None else self.move_time(target)
-        s = min_jerk(self.n_of(T) + 1)[1:, None]
-        return self.add_poses(self.pose + s * (target - self.pose), phase, trial)
-
-    def record(self, kind: str, axis: str, magnitude: float, unit: str, pre, move, post, **extra) -> None:
-        self.trials.append(
-            dict(
-                index=len(self.trials),
-                kind=kind,
-                axis=axis,
-                magnitude=float(magnitude),
-                unit=unit,
-                pre_start=pre[0],
-                pre_end=pre[1],
-                move_start=move[0],
-                move_end=move[1],
-                post_start=post[0],
-                post_end=post[1],
-                complete=True,
-                **extra,
-            )
-        )
-
-    def build(self) -> Command:
-        cat = np.concatenate
-        return Command(cat(self.p), cat(self.roll), cat(self.trial), cat(self.phase), self.trials)
-
-
 def translation(ctx: ProtocolContext, seed: int) -> Command:
     """300 steps of 1-20 mm along +-x, +-y, +-z of the camera frame from 130 mm depth, random order."""
-    b = _Builder(ctx)
+    b = Builder(ctx)
     b.move([0.0, 0.0, TRANSLATION_DEPTH_M, 0.0], FREE)
     b.hold(1.0, FREE)
     p0 = b.tip(b.pose[None])[0]
@@ -210,7 +76,7 @@ def translation(ctx: ProtocolContext, seed: int) -> Command:
 
 def rotation(ctx: ProtocolContext, seed: int) -> Command:
     """180 pitch / yaw / roll trials about the neutral shaft at 140 mm, random order."""
-    b = _Builder(ctx)
+    b = Builder(ctx)
     base = np.array([0.0, 0.0, ROTATION_DEPTH_M, 0.0])
     b.move(base, FREE)
     b.hold(1.0, FREE)
@@ -234,7 +100,7 @@ def rotation(ctx: ProtocolContext, seed: int) -> Command:
 
 def fit_block(ctx: ProtocolContext, seed: int) -> Command:
     """Ten static poses at 140 mm, 7.8 s each (78 s): minimum-jerk move, then hold."""
-    b = _Builder(ctx)
+    b = Builder(ctx)
     rng = np.random.default_rng(seed)
     ang = np.deg2rad(rng.uniform(-8.0, 8.0, (10, 2)))
     roll = np.deg2rad(rng.uniform(-40.0, 40.0, 10))
@@ -252,7 +118,7 @@ def fit_block(ctx: ProtocolContext, seed: int) -> Command:
 
 def static_holds(ctx: ProtocolContext, seed: int) -> Command:
     """Twenty 30 s holds at four poses (random order), then a 5 min soak at the neutral pose."""
-    b = _Builder(ctx)
+    b = Builder(ctx)
     L = ctx.depth_m
     poses = np.array(
         [
@@ -273,32 +139,10 @@ def static_holds(ctx: ProtocolContext, seed: int) -> Command:
     return b.build()
 
 
-def _oscillation(b: _Builder, axis: str, x: np.ndarray, trial: int) -> tuple[int, int]:
-    """Append offsets x (n,) [m of tip travel, m of depth or rad of roll] about the current pose."""
-    poses = np.repeat(b.pose[None], len(x), 0)
-    if axis == "pitch" or axis == "tilt":
-        poses[:, 0] += x / b.pose[2]
-    elif axis == "depth":
-        poses[:, 2] += x
-    else:
-        poses[:, 3] += x
-    out = b.add_poses(poses, MOVE, trial)
-    b.pose = poses[-1].copy()
-    return out
-
-
-def _taper(n: int, n_ramp: int) -> np.ndarray:
-    w = np.ones(n)
-    ramp = min_jerk(n_ramp)
-    w[:n_ramp] = ramp
-    w[n - n_ramp :] = np.minimum(w[n - n_ramp :], ramp[::-1])
-    return w
-
-
 def sweep(ctx: ProtocolContext, name: str) -> Command:
     """One programmed chirp sweep (exponential in frequency, amplitude falling as a power law)."""
     axis, T, f0, f1, a0, a1 = SWEEPS[name]
-    b = _Builder(ctx)
+    b = Builder(ctx)
     n = b.n_of(T)
     t = np.arange(n) / ctx.rate_hz
     k = np.log(f1 / f0) / T
@@ -306,9 +150,9 @@ def sweep(ctx: ProtocolContext, name: str) -> Command:
     f = f0 * np.exp(k * t)
     amp = a0 * (f / f0) ** (np.log(a1 / a0) / np.log(f1 / f0))
     amp = amp * (1e-3 if axis in ("pitch", "depth") else np.pi / 180.0)
-    x = amp * np.sin(phase) * _taper(n, b.n_of(5.0))
+    x = amp * np.sin(phase) * taper(n, b.n_of(5.0))
     pre = b.hold(WINDOW_S, PRE, 0)
-    mv = _oscillation(b, axis, x, 0)
+    mv = oscillation(b, axis, x, 0)
     post = b.hold(WINDOW_S, POST, 0)
     b.record(name, axis, a0, "mm" if axis != "roll" else "deg", pre, mv, post, f0_hz=f0, f1_hz=f1, amp_end=a1)
     return b.build()
@@ -316,7 +160,7 @@ def sweep(ctx: ProtocolContext, name: str) -> Command:
 
 def latency(ctx: ProtocolContext, seed: int) -> Command:
     """Sinusoids per channel and frequency, amplitudes bounded by the tip-speed (or roll-rate) limit."""
-    b = _Builder(ctx)
+    b = Builder(ctx)
     v = ctx.speed_fraction * ctx.tip_speed_max_mps
     caps = {"depth": 0.010, "tilt": 0.020, "roll": np.deg2rad(20.0)}
     i = 0
@@ -328,9 +172,9 @@ def latency(ctx: ProtocolContext, seed: int) -> Command:
             w = 2.0 * np.pi * fr
             lim = ctx.roll_rate_max_radps * 0.8 if axis == "roll" else v
             amp = min(caps[axis], lim / (w + 1.875 / T_ramp))
-            x = amp * np.sin(w * np.arange(n) / ctx.rate_hz) * _taper(n, b.n_of(T_ramp))
+            x = amp * np.sin(w * np.arange(n) / ctx.rate_hz) * taper(n, b.n_of(T_ramp))
             pre = b.hold(2.0, PRE, i)
-            mv = _oscillation(b, axis, x, i)
+            mv = oscillation(b, axis, x, i)
             post = b.hold(2.0, POST, i)
             unit = "deg" if axis == "roll" else "mm"
             mag = np.rad2deg(amp) if axis == "roll" else amp * 1e3
@@ -372,11 +216,11 @@ def teleop_block(ctx: ProtocolContext, seed: int, block: int) -> Command:
     mid, half = 0.5 * (lo_w + hi_w), 0.5 * (hi_w - lo_w)
     for attempt in range(50):
         rng = np.random.default_rng([seed, block, attempt])
-        b = _Builder(ctx)
+        b = Builder(ctx)
         n = b.n_of(TELEOP_BLOCK_S)
         bands = ((0.06, 1.0), (0.25, 0.45), (0.8, 0.08))
         tp, ty, dd, rr = (_band_noise(rng, n, ctx.rate_hz, bands) for _ in range(4))
-        w = _taper(n, b.n_of(6.0))
+        w = taper(n, b.n_of(6.0))
         tilt = np.hypot(tp, ty) * w
         s_t = _scale_for_fraction(tilt, ctx.tilt_envelope_rad, rng.uniform(0.935, 0.965))
         # The taper pulls the depth toward the neutral depth; centre the noise on the working range.
@@ -402,10 +246,10 @@ def teleop_block(ctx: ProtocolContext, seed: int, block: int) -> Command:
 
 def demo(ctx: ProtocolContext, duration_s: float = 100.0) -> Command:
     """A continuous loop (period 100 s): Lissajous tilt, slow depth and roll, from and back to neutral."""
-    b = _Builder(ctx)
+    b = Builder(ctx)
     n = b.n_of(duration_s)
     t = np.arange(n) / ctx.rate_hz
-    w = _taper(n, b.n_of(min(3.0, duration_s / 3)))
+    w = taper(n, b.n_of(min(3.0, duration_s / 3)))
     tau = 2.0 * np.pi * t
     poses = np.stack(
         [
@@ -419,34 +263,6 @@ def demo(ctx: ProtocolContext, duration_s: float = 100.0) -> Command:
     mv = b.add_poses(poses, MOVE, 0)
     b.record("demo", "free", 0.0, "-", (0, 0), mv, (mv[1], mv[1]), period_s=100.0)
     return b.build()
-
-
-def concat(commands: list[Command], gap_samples: int = 0) -> Command:
-    """Chain commands (each starts and ends at neutral at rest); trial indices renumbered."""
-    ps, rolls, trials, phases, infos, n, k = [], [], [], [], [], 0, 0
-    for c in commands:
-        tr = c.trial.copy()
-        tr[tr >= 0] += k
-        ps.append(c.p_raw_m)
-        rolls.append(c.roll_rad)
-        trials.append(tr)
-        phases.append(c.phase)
-        for info in c.trials:
-            d = dict(info)
-            d["index"] += k
-            for key in ("pre_start", "pre_end", "move_start", "move_end", "post_start", "post_end"):
-                d[key] += n
-            infos.append(d)
-        k += len(c.trials)
-        n += len(c.p_raw_m)
-        if gap_samples:
-            ps.append(np.repeat(c.p_raw_m[-1:], gap_samples, 0))
-            rolls.append(np.repeat(c.roll_rad[-1:], gap_samples))
-            trials.append(np.full(gap_samples, -1, np.int32))
-            phases.append(np.full(gap_samples, FREE, np.uint8))
-            n += gap_samples
-    cat = np.concatenate
-    return Command(cat(ps), cat(rolls), cat(trials), cat(phases), infos)
 
 
 PROTOCOLS = (
