@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from services.bench import protocols
 from services.bench.protocols import FREE, HOLD, MOVE, POST, PRE  # noqa: F401  (re-exported)
-from services.bench.robot import Fr3Kinematics, InstrumentMount, rpy_to_matrix
+from services.bench.robot import FR3_Q_MAX_RAD, FR3_Q_MIN_RAD, Fr3Kinematics, InstrumentMount, rpy_to_matrix
 from services.bench.servo import RcmServo, ServoParams, project_onto_port
 
 Vec3 = tuple[float, float, float]
@@ -70,8 +70,18 @@ class MotionConfig(BaseModel):
         lo, hi = self.working_depth_mm
         if not self.L_min_mm <= lo < hi <= self.L_max_mm:
             raise ValueError("working_depth_mm must be an increasing pair inside [L_min_mm, L_max_mm]")
-        if any(w < 0 for w in self.posture_weights):
-            raise ValueError("posture_weights must be non-negative")
+        if any(not 0.0 <= w <= 100.0 for w in self.posture_weights):
+            raise ValueError("posture_weights must each be in [0, 100]")
+        for name in ("camera_rpy_deg", "command_camera_error_deg", "rpy_flange_tool_deg"):
+            if any(abs(v) > 360.0 for v in getattr(self, name)):
+                raise ValueError(f"{name}: each angle must be within +-360 deg")
+        if any(abs(v) > 5.0 for v in self.command_camera_error_deg):
+            raise ValueError("command_camera_error_deg: a hand-eye error beyond 5 deg is not a calibration")
+        if any(abs(v) > 0.3 for v in self.p_flange_handle_m):
+            raise ValueError("p_flange_handle_m: each coordinate must be within 0.3 m of the flange")
+        q = np.asarray(self.posture_seed_rad)
+        if np.any(q < FR3_Q_MIN_RAD) or np.any(q > FR3_Q_MAX_RAD):
+            raise ValueError("posture_seed_rad must lie inside the FR3 joint limits")
         return self
 
     def mount(self) -> InstrumentMount:

@@ -167,6 +167,12 @@ def test_simulate_interface() -> None:
         MotionConfig(unknown_field=1.0)
     with pytest.raises(ValueError):
         MotionConfig(depth_mm=500.0)
+    with pytest.raises(ValueError, match="posture_seed_rad"):
+        MotionConfig(posture_seed_rad=(0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0))
+    with pytest.raises(ValueError, match="rcm_base_m"):
+        MotionConfig(rcm_base_m=(3.0, 0.0, 0.2))
+    with pytest.raises(ValueError, match="working_depth_mm"):
+        MotionConfig(working_depth_mm=(150.0, 130.0))
 
 
 def test_hand_eye_error_turns_the_commanded_directions() -> None:
