@@ -239,18 +239,14 @@ def _defocus_box(canvas: np.ndarray, box: tuple[slice, slice], sigma_px: float) 
 
 
 def _add_smoke(canvas: np.ndarray, scene: Scene, rng: np.random.Generator, density: float) -> None:
-    """Semi-transparent low-frequency haze over the whole view, in place (canvas in DN). The haze is
-    built at 1/8 resolution and spread with bilinear resizing: it has no fine detail to lose."""
+    """Semi-transparent low-frequency haze over the whole view, in place (canvas in DN): opacity from a
+    coarse random field, smoothly upsampled; one blending pass."""
     h, w = canvas.shape[:2]
     sh, sw = max(2, h // 8), max(2, w // 8)
     field = cv2.resize(rng.random((6, 10), dtype=np.float32), (sw, sh), interpolation=cv2.INTER_CUBIC)
     alpha = density * np.clip(0.35 + 1.2 * (field - 0.5), 0.0, 1.0)
-    tint = np.float32(rng.uniform(0.75, 0.92))
-    gain = cv2.resize(scene.gain_dn, (sw, sh), interpolation=cv2.INTER_AREA)
-    keep = cv2.resize(np.repeat((1.0 - alpha)[..., None], 3, axis=2), (w, h), interpolation=cv2.INTER_LINEAR)
-    add = cv2.resize(np.repeat((alpha * tint * gain)[..., None], 3, axis=2), (w, h), interpolation=cv2.INTER_LINEAR)
-    cv2.multiply(canvas, keep, dst=canvas)
-    cv2.add(canvas, add, dst=canvas)
+    alpha = cv2.resize(alpha, (w, h), interpolation=cv2.INTER_LINEAR)
+    canvas[:] = cv2.blendLinear(canvas, scene.smoke_dn, 1.0 - alpha, alpha)
 
 
 def _fill_truth(

@@ -21,6 +21,7 @@ FAT_RGB = np.array([0.90, 0.74, 0.58], np.float32)
 DEEP_RGB = np.array([0.62, 0.20, 0.22], np.float32)
 VESSEL_RGB = np.array([0.50, 0.10, 0.14], np.float32)
 BACKGROUND_RGB = np.array([0.06, 0.06, 0.07], np.float32)
+SMOKE_RADIANCE = 0.85
 
 
 class Scene:
@@ -46,6 +47,7 @@ class Scene:
         # radiance -> digital numbers: locked exposure times vignetting, folded into everything drawn
         self.gain_dn = (255.0 * params.exposure * vig).astype(np.float32)
         self.floor_dn = self._floor(params) * self.gain_dn[..., None]
+        self.smoke_dn = np.repeat(SMOKE_RADIANCE * self.gain_dn[..., None], 3, axis=2)  # haze lit by the lamp
         # 8-bit uniform draws -> unit-variance normal deviates (256-level inverse CDF table)
         z = ndtri((np.arange(256) + 0.5) / 256.0)
         self.normal_lut = (z / z.std()).astype(np.float32)
