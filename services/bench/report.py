@@ -233,7 +233,11 @@ def tof_rows(s: Session, wins) -> list[Row]:
         means = np.array([g.mean() for g in groups])
         across = float(means.std(ddof=1)) if len(means) >= 3 else None
     rows.append(_row("ToF repeat scatter, one pose", "mm", "0.43", 0.25, 0.65, rep, "window means vs truth"))
-    rows.append(_row("ToF scatter across poses", "mm", "3.04", 2.0, 4.5, across))
+    npose = 0 if across is None else len(means)
+    r = _row("ToF scatter across poses", "mm", "3.04", 2.0, 4.5, across, f"{npose} poses")
+    if r.value is not None and npose < 10:
+        r.status, r.note = "info", f"only {npose} poses"
+    rows.append(r)
     return rows
 
 
