@@ -158,3 +158,26 @@ def test_pose_field_repeatable_and_sized():
 def test_ou_process_sd():
     x = ou_process(np.random.default_rng(0), np.arange(200_000) * 0.01, 0.39, 2.0)
     assert x.std() == pytest.approx(0.39, rel=0.1)
+
+
+def test_accel_self_recalibration_jump():
+    over = {"accel.self_recal": True, "accel.self_recal_jump_time_s": 10.0, "accel.self_recal_settle_tau_s": 5.0}
+    sc, const, gt = _setup(over, duration_s=40.0)
+    _, _, st = sensors.simulate_sensors(gt, sc, const, np.random.default_rng(7))
+    a = st["accel"]
+    norm = np.linalg.norm(a.values, axis=1) / 9.80665
+    t = a.t_true_ns * 1e-9
+    assert abs(norm[t < 9.5].mean() - 1.0) < 0.0006  # off: within 0.06 % of g
+    assert norm[(t > 10.0) & (t < 10.5)].mean() == pytest.approx(1.063, abs=0.004)
+    assert norm[t > 35].mean() == pytest.approx(1.055, abs=0.002)
+
+
+def test_mag_session_scale_and_pose_disturbance():
+    sc, const, gt = _setup(duration_s=5.0)
+    scales = []
+    for seed in range(6):
+        _, _, st = sensors.simulate_sensors(gt, sc, const, np.random.default_rng(seed))
+        scales.append(st["mag"].extra["session_scale"][0])
+        m = st["mag"].values
+        assert np.linalg.norm(m.mean(0)) == pytest.approx(scales[-1] * sc.mag.earth_field_ut, rel=0.2)
+    assert min(scales) >= sc.mag.session_scale_min and max(scales) <= sc.mag.session_scale_max

@@ -104,3 +104,14 @@ def test_same_seed_same_file_content(tmp_path):
 def test_bad_tier(tmp_path):
     with pytest.raises(ValueError, match="tier"):
         generate(load_scenario("static"), tmp_path / "x.mcap", tier="bogus", duration_s=1.0)
+
+
+def test_pixel_tier_writes_raw_images(tmp_path):
+    pytest.importorskip("cv2")
+    path = tmp_path / "px.mcap"
+    generate(load_scenario("static"), path, seed=1, tier="pixel", duration_s=0.4)
+    imgs = [r for r in read_messages(path, ["camera/image"])]
+    assert len(imgs) == pytest.approx(0.4 * 15, abs=1)
+    m = imgs[0].message
+    assert (m.width, m.height, m.encoding, m.step) == (1280, 720, "rgb8", 3840) and len(m.data) == 1280 * 720 * 3
+    assert not list(read_messages(path, ["vision/observation"]))
