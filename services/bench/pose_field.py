@@ -10,6 +10,7 @@ squared-exponential kernel over orientation (correlation angle) and tip position
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import lfilter
 
 
 class PoseField:
@@ -42,22 +43,13 @@ class PoseField:
 
 
 def ou_process(rng: np.random.Generator, t_s: np.ndarray, sd: float, tau_s: float) -> np.ndarray:
-    """Stationary Ornstein-Uhlenbeck samples at increasing times t_s (n,): SD sd, time constant tau_s."""
+    """Stationary Ornstein-Uhlenbeck samples at the (nearly uniform) times t_s (n,): SD sd,
+    time constant tau_s; an AR(1) recursion at the mean sample interval."""
     n = len(t_s)
-    out = np.empty(n)
     if n == 0:
-        return out
-    dt = np.diff(t_s, prepend=t_s[0])
-    rho = np.exp(-dt / tau_s)
-    e = rng.normal(size=n) * sd * np.sqrt(1.0 - rho * rho)
-    out[0] = rng.normal() * sd
-    # x_k = rho_k x_{k-1} + e_k, as a scan in chunks (exact; vectorised via cumulative products)
-    from scipy.signal import lfilter
-
-    if np.allclose(rho[1:], rho[1] if n > 1 else 0.0):
-        r = rho[1] if n > 1 else 0.0
-        x = lfilter([1.0], [1.0, -r], np.concatenate([[out[0]], e[1:]]))
-        return x
-    for k in range(1, n):
-        out[k] = rho[k] * out[k - 1] + e[k]
-    return out
+        return np.empty(0)
+    dt = float(np.mean(np.diff(t_s))) if n > 1 else 1.0
+    r = np.exp(-dt / tau_s)
+    e = rng.normal(size=n) * sd * np.sqrt(1.0 - r * r)
+    e[0] = rng.normal() * sd
+    return lfilter([1.0], [1.0, -r], e)

@@ -9,21 +9,17 @@ exercise it, e.g. no motion in a static session).
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from services.bench.calibration import BenchConstants
+from services.bench.report_data import Session, cluster_poses, in_window, load, pose_key, rest_windows, truth_p, truth_R
 from tiplog import vision_geometry as vg
-from tiplog.geometry import quat_to_rot, so3_exp, so3_log
-from tiplog.mcap_io import read_messages, read_metadata
+from tiplog.geometry import so3_exp, so3_log
 
 G = 9.80665
-REST = ("pre", "post", "hold")
 
 
 @dataclass
@@ -44,135 +40,12 @@ def _row(name: str, unit: str, paper: str, lo: float, hi: float, value: float | 
     return Row(name, unit, paper, lo, hi, float(value), "PASS" if lo <= value <= hi else "FAIL", note)
 
 
-@dataclass
-class Session:
-    """Arrays read back from a session file."""
-
-    meta: dict[str, Any]
-    truth: BenchConstants
-    calib: BenchConstants
-    trials: list[dict]
-    robot_t: np.ndarray
-    robot_p: np.ndarray
-    robot_R: np.ndarray
-    robot_phase: np.ndarray
-    streams: dict[str, dict[str, np.ndarray]]
-    vision: dict[str, np.ndarray]
-    motion_rate_hz: float
-
-
-def _vec(v) -> list[float]:
-    return [v.x, v.y, v.z]
-
-
-def load(path: str | Path) -> Session:
-    md = read_metadata(path)
-    truth = BenchConstants.from_dict(json.loads(md["calibration_truth"]["json"]))
-    calib = BenchConstants.from_dict(json.loads(md["calibration_as_calibrated"]["json"]))
-    scen = yaml.safe_load(md["scenario"]["yaml"])
-    trials = json.loads(md.get("trials", {}).get("json", "[]"))
-    rob: dict[str, list] = {"t": [], "p": [], "q": [], "ph": []}
-    raw: dict[str, dict[str, list]] = {
-        k: {"t": [], "v": [], "s": [], "sm": [], "sv": []} for k in ("gyro", "accel", "tof", "mag")
-    }
-    vis: dict[str, list] = {k: [] for k in ("t", "acc", "nl", "nr", "ju", "jv", "jvis", "proc")}
-    for r in read_messages(path):
-        m = r.message
-        if r.topic == "bench/robot":
-            rob["t"].append(m.header.stamp_ns)
-            rob["p"].append(_vec(m.tip_m))
-            o = m.tool_pose.orientation
-            rob["q"].append([o.x, o.y, o.z, o.w])
-            rob["ph"].append(m.phase)
-        elif r.topic == "device/tof":
-            d = raw["tof"]
-            d["t"].append(m.header.stamp_ns)
-            d["v"].append(m.range_raw_mm)
-            d["s"].append(m.status)
-            d["sm"].append(m.range_smoothed_mm)
-            d["sv"].append(m.smoothed_valid)
-        elif r.topic.startswith("device/"):
-            key = r.topic.split("/")[1]
-            if key in raw:
-                raw[key]["t"].append(m.header.stamp_ns)
-                f = {"gyro": m.rate_radps if key == "gyro" else None}
-                vec = f["gyro"] if key == "gyro" else (m.specific_force_mps2 if key == "accel" else m.field_ut)
-                raw[key]["v"].append(_vec(vec))
-        elif r.topic == "vision/observation":
-            vis["t"].append(m.header.stamp_ns)
-            vis["acc"].append(m.accepted)
-            vis["nl"].append(_vec(m.n_left))
-            vis["nr"].append(_vec(m.n_right))
-            vis["ju"].append(m.junction_u_px)
-            vis["jv"].append(m.junction_v_px)
-            vis["jvis"].append(m.junction_visible)
-            vis["proc"].append(m.processing_ms)
-    streams = {k: {kk: np.asarray(vv) for kk, vv in d.items()} for k, d in raw.items()}
-    return Session(
-        meta=md,
-        truth=truth,
-        calib=calib,
-        trials=trials,
-        robot_t=np.asarray(rob["t"], dtype=np.int64),
-        robot_p=np.asarray(rob["p"], dtype=float).reshape(-1, 3),
-        robot_R=quat_to_rot(np.asarray(rob["q"], dtype=float).reshape(-1, 4)),
-        robot_phase=np.asarray(rob["ph"]),
-        streams=streams,
-        vision={k: np.asarray(v) for k, v in vis.items()},
-        motion_rate_hz=float(scen.get("motion", {}).get("rate_hz", 1000.0)),
-    )
-
-
-# --- truth at arbitrary times ---------------------------------------------------------------
-def truth_p(s: Session, t_ns: np.ndarray) -> np.ndarray:
-    return np.stack([np.interp(t_ns, s.robot_t, s.robot_p[:, j]) for j in range(3)], -1)
-
-
-def truth_R(s: Session, t_ns: np.ndarray) -> np.ndarray:
-    i = np.clip(np.searchsorted(s.robot_t, t_ns, side="right") - 1, 0, len(s.robot_t) - 2)
-    a = np.clip((t_ns - s.robot_t[i]) / np.diff(s.robot_t)[i], 0.0, 1.0)
-    rel = so3_log(np.einsum("nji,njk->nik", s.robot_R[i], s.robot_R[i + 1]))
-    return s.robot_R[i] @ so3_exp(a[:, None] * rel)
-
-
-def rest_windows(s: Session, trim_s: float = 0.5, min_s: float = 2.0) -> list[tuple[int, int]]:
-    """(start_ns, end_ns) of the stationary windows (pre/post/hold runs), trimmed."""
-    rest = np.isin(s.robot_phase, REST)
-    out = []
-    if not rest.any():
-        return out
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(int), [0]])))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        t0, t1 = s.robot_t[a] + trim_s * 1e9, s.robot_t[b - 1] - trim_s * 1e9
-        if t1 - t0 >= (min_s - 2 * trim_s) * 1e9 and np.ptp(s.robot_p[a:b], axis=0).max() < 1e-4:
-            out.append((int(t0), int(t1)))
-    return out
-
-
-def _in(t: np.ndarray, w: tuple[int, int]) -> np.ndarray:
-    return (t >= w[0]) & (t <= w[1])
-
-
-def _pose_key(s: Session, tm: np.ndarray) -> np.ndarray:
-    """Tip [mm] and rotation matrix entries scaled so that 0.2 units ~ 0.2 mm ~ 0.1 deg."""
-    return np.concatenate([truth_p(s, tm)[0] * 1e3, truth_R(s, tm)[0].ravel() * 114.6])
-
-
-def _cluster(P: np.ndarray, tol: float = 0.2) -> np.ndarray:
-    """Label windows that revisit one pose (within tol in every _pose_key entry)."""
-    labels = -np.ones(len(P), int)
-    for i in range(len(P)):
-        if labels[i] < 0:
-            labels[(labels < 0) & (np.abs(P - P[i]).max(1) < tol)] = labels.max() + 1
-    return labels
-
-
 # --- statistics ---------------------------------------------------------------------------
 def accel_rows(s: Session, wins) -> list[Row]:
     a = s.streams["accel"]
     tilt_sd, dir_err, norms, poses = [], [], [], []
     for w in wins:
-        m = _in(a["t"], w)
+        m = in_window(a["t"], w)
         if m.sum() < 50:
             continue
         v = a["v"][m]
@@ -188,14 +61,14 @@ def accel_rows(s: Session, wins) -> list[Row]:
         g_imu = R_imu.T @ np.array([0, 0, 1.0])
         dir_err.append(np.degrees(np.arccos(np.clip(e @ g_imu, -1, 1))))
         norms.append(np.linalg.norm(mean))
-        poses.append(_pose_key(s, tm))
+        poses.append(pose_key(s, tm))
     med = float(np.median(tilt_sd)) if tilt_sd else None
     note = f"{len(tilt_sd)} windows, {min(tilt_sd):.2f}-{max(tilt_sd):.2f}" if tilt_sd else "no rest windows"
     rows = [_row("accel tilt SD per sample at rest", "deg", "0.30-0.55", 0.30, 0.55, med, note)]
     # pose-locked: one value per distinct pose (windows of one pose share their error)
     npose, rms = 0, None
     if dir_err:
-        labels = _cluster(np.asarray(poses))
+        labels = cluster_poses(np.asarray(poses))
         per_pose = [np.mean(np.asarray(dir_err)[labels == k]) for k in range(labels.max() + 1)]
         npose = len(per_pose)
         rms = float(np.sqrt(np.mean(np.square(per_pose)))) if npose >= 5 else None
@@ -212,19 +85,19 @@ def tof_rows(s: Session, wins) -> list[Row]:
     valid = d["s"] == 1
     sds, errs, poses = [], [], []
     for w in wins:
-        m = _in(d["t"], w) & valid
+        m = in_window(d["t"], w) & valid
         if m.sum() < 50:
             continue
         sds.append(d["v"][m].std())
         tm = np.array([(w[0] + w[1]) // 2])
         R, p = truth_R(s, tm), truth_p(s, tm)
         errs.append(d["v"][m].mean() - s.truth.tof_range_m(R, p)[0] * 1e3)
-        poses.append(_pose_key(s, tm))
+        poses.append(pose_key(s, tm))
     rows = [_row("ToF SD per sample at rest", "mm", "2.95-3.43", 2.95, 3.43, float(np.median(sds)) if sds else None)]
     rep = across = None
     if len(errs) >= 4:
         E = np.asarray(errs)
-        labels = _cluster(np.asarray(poses))
+        labels = cluster_poses(np.asarray(poses))
         groups = [E[labels == k] for k in range(labels.max() + 1)]
         within = [g - g.mean() for g in groups if len(g) >= 2]
         if within:
@@ -432,7 +305,7 @@ def mag_row(s: Session) -> Row:
         ang = []
         for k0, k1 in (("pre_start", "pre_end"), ("post_start", "post_end")):
             w = (tr[k0] / rate * 1e9 + 5e8, tr[k1] / rate * 1e9 - 5e8)
-            ma, mm = _in(a["t"], w), _in(mg["t"], w)
+            ma, mm = in_window(a["t"], w), in_window(mg["t"], w)
             if ma.sum() < 20 or mm.sum() < 10:
                 break
             ea, em = a["v"][ma].mean(0), mg["v"][mm].mean(0)
