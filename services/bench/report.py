@@ -200,7 +200,7 @@ def latency_rows(s: Session) -> list[Row]:
     if not graded:
         for r in rows:
             if r.value is not None:
-                r.status, r.note = "info", "broadband motion: biased fit; graded on latency/sweeps"
+                r.status, r.note = "info", "not a latency/sweep protocol: fit for information only"
     return rows
 
 

@@ -236,7 +236,7 @@ BUILTIN: dict[str, dict[str, Any]] = {
     "rotation": {"protocol": "rotation", "motion": {"neutral_tilt_deg": 30.4}},
     "sweeps": {"protocol": "sweeps"},
     "teleop": {"protocol": "teleop"},
-    "demo": {"protocol": "teleop", "duration_s": 120.0},
+    "demo": {"protocol": "demo", "duration_s": 120.0},
 }
 
 
