@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from scipy.spatial.transform import Rotation
 
 from services.bench import messages
 from services.bench.calibration import as_calibrated, true_constants
@@ -59,12 +60,13 @@ def generate(
     duration = duration_s if duration_s is not None else scenario.duration_s
     ss = np.random.SeedSequence(seed)
     s_motion, s_cal, s_sens, s_vis = ss.spawn(4)
-    prog("robot", 0.0)
-    gt = _motion().simulate(scenario.motion, scenario.protocol, int(s_motion.generate_state(1)[0]), duration)
-    timings["robot_s"] = time.perf_counter() - t0
     truth = true_constants(scenario)
-    truth.rcm_base_m = np.asarray(gt.rcm_base_m, dtype=float)
     calib = as_calibrated(truth, scenario, np.random.default_rng(s_cal))
+    motion_cfg = _commanded_through_hand_eye(scenario, truth, calib)
+    prog("robot", 0.0)
+    gt = _motion().simulate(motion_cfg, scenario.protocol, int(s_motion.generate_state(1)[0]), duration)
+    timings["robot_s"] = time.perf_counter() - t0
+    truth.rcm_base_m = np.asarray(gt.rcm_base_m, dtype=float)
     prog("sensors", 0.2)
     t1 = time.perf_counter()
     kin, clock, streams = simulate_sensors(gt, scenario, truth, np.random.default_rng(s_sens))
@@ -104,6 +106,7 @@ def generate(
                 "duration_s": f"{gt.t_ns[-1] * 1e-9:.3f}",
                 "robot_rate_hz": str(scenario.output.robot_rate_hz),
                 "device_clock_offset_ns": str(clock.offset_ns),
+                "command_camera_error_deg": json.dumps(list(motion_cfg.command_camera_error_deg)),
                 "generator": f"tiplog/{__version__} services.bench.session",
             },
         )
@@ -139,6 +142,20 @@ def generate(
         "timings": timings,
         "trials": len(gt.trials),
     }
+
+
+def _commanded_through_hand_eye(scenario: Scenario, truth, calib):
+    """The paper commanded trials along camera axes through its estimated hand-eye: unless the
+    scenario sets motion.command_camera_error_deg itself, use the as-calibrated camera
+    rotation (R_cmd = R_true E, E = R_true^T R_cal)."""
+    mc = scenario.motion
+    if any(abs(v) > 0 for v in getattr(mc, "command_camera_error_deg", (0.0, 0.0, 0.0))) or not hasattr(
+        mc, "command_camera_error_deg"
+    ):
+        return mc
+    E = truth.T_base_camera[:3, :3].T @ calib.T_base_camera[:3, :3]
+    rpy = Rotation.from_matrix(E).as_euler("xyz", degrees=True)  # R = Rz Ry Rx, as rpy_to_matrix
+    return mc.model_copy(update={"command_camera_error_deg": tuple(float(v) for v in rpy)})
 
 
 def _pixel_batch(kin, scenario: Scenario, truth, rng: np.random.Generator, prog: Progress) -> messages.Batch:
