@@ -244,6 +244,17 @@ def gyro_drift_row(s: Session) -> Row:
     )
 
 
+def _rate_row(spec: tuple, pct: float | None, n: int, note: str) -> Row:
+    """A percentage over n frames: PASS also within 2 binomial standard errors of the range."""
+    r = _row(*spec, pct, note)
+    if pct is not None:
+        se = 100.0 * np.sqrt(max(pct / 100 * (1 - pct / 100), 1e-4) / n)
+        r.note += f", SE {se:.1f} %"
+        if r.status == "FAIL" and r.lo - 2 * se <= pct <= r.hi + 2 * se:
+            r.status, r.note = "PASS", r.note + " (within 2 SE)"
+    return r
+
+
 def vision_rows(s: Session) -> list[Row]:
     v = s.vision
     na = [
@@ -289,8 +300,8 @@ def vision_rows(s: Session) -> list[Row]:
         _row(*na[0], plane, f"{acc.sum()} accepted frames"),
         _row(*na[1], depth_rms, "about the mean offset"),
         _row(*na[2], offset),
-        _row(*na[3], acc_rate, note),
-        _row(*na[4], gate_rate, note + "; as-calibrated RCM and hand-eye"),
+        _rate_row(na[3], acc_rate, nfree, note),
+        _rate_row(na[4], gate_rate, nfree, note + "; as-calibrated RCM and hand-eye"),
         _row(*na[5], float(np.median(v["proc"]))),
     ]
 
