@@ -41,7 +41,11 @@ class BusConfig(BaseModel):
 
     mode: Literal["peer", "client", "router"] = "peer"
     connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
-    listen: list[str] = Field(default_factory=list)
+    # Peers learn of each other through the router (gossip) but exchange data directly, so a
+    # peer must listen somewhere: an ephemeral loopback port by default. A service on another
+    # machine (or in its own container) uses mode "client" and reaches everything through
+    # the router it connects to.
+    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:0"])
     prefix: str = "tiplog/"
     multicast_scouting: bool = False
     # Shared memory for large payloads between processes on one host (zenoh default: on).

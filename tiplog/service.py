@@ -58,6 +58,8 @@ def overrides_from_args(args: argparse.Namespace) -> list[tuple[str, object] | s
     out: list[tuple[str, object] | str] = list(args.set or [])
     for name in ("mode", "connect", "listen", "prefix"):
         v = getattr(args, name, None)
+        if isinstance(v, list):  # `--listen ''` means: none
+            v = [e for e in v if e]
         if v is not None:
             out.append((f"bus.{name}", v))
     if getattr(args, "log_level", None):

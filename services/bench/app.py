@@ -1,12 +1,17 @@
-"""`python -m services.bench`: joins the bus and declares its liveliness token; its own work
-lands with its issue."""
+"""`python -m services.bench`: the simulated bench live. The chosen scenario is played in real
+time: device bytes through a pseudo-terminal in the device's serial protocol (the gateway
+reads it as it would the real module), camera frames or vision observations and the robot's
+ground truth on the bus."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
-from tiplog.config import ServiceConfig
-from tiplog.service import idle_until_stopped, run_service
+from pydantic import Field
+
+from tiplog.config import ConfigError, ServiceConfig
+from tiplog.service import ServiceContext, run_service
 
 NAME = "bench"
 
@@ -14,6 +19,55 @@ NAME = "bench"
 class BenchConfig(ServiceConfig):
     """Configuration of the bench service (section `bench:` of the YAML file)."""
 
+    scenario: str = "demo"  # built-in name or YAML file
+    scenario_overrides: list[str] = Field(default_factory=list)  # "field.path=value"
+    seed: int = Field(0, ge=0)
+    duration_s: float | None = Field(None, gt=0.0, le=3600.0)  # one pass; default: the scenario's
+    loop: bool = True
+    # Where the emulated device's pseudo-terminal appears (the gateway's `port`); "" = no device.
+    device_link: str = "/tmp/tiplog-device"
+    camera_tier: Literal["pixel", "measurement", "none"] = "pixel"
+    robot_rate_hz: float = Field(200.0, gt=0.0, le=1000.0)
+    tf_rate_hz: float = Field(30.0, gt=0.0, le=200.0)
+
+
+def body(ctx: ServiceContext[BenchConfig]) -> None:
+    # Heavy imports (Pinocchio, renderer) only once the service is on the bus.
+    from services.bench.live import LiveBench, prepare
+    from services.bench.scenario import load_scenario
+    from tiplog.devproto.emulator import DeviceEmulator
+
+    cfg = ctx.config
+    try:
+        scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
+    except ConfigError as e:
+        ctx.log.error("%s", e)
+        raise SystemExit(2) from None
+    sim = prepare(scenario, cfg.seed, cfg.camera_tier, cfg.duration_s)
+    if ctx.stop.is_set():
+        return
+    emulator = None
+    if cfg.device_link:
+        emulator = DeviceEmulator(cfg.device_link, drop_without_host=True)
+        emulator.plug()
+        ctx.log.info("device on %s", cfg.device_link)
+    try:
+        live = LiveBench(
+            sim,
+            ctx.bus,
+            emulator,
+            ctx.stop,
+            camera_tier=cfg.camera_tier,
+            robot_rate_hz=cfg.robot_rate_hz,
+            tf_rate_hz=cfg.tf_rate_hz,
+            loop=cfg.loop,
+        )
+        live.run()
+        ctx.log.info("played: %s", live.counters)
+    finally:
+        if emulator is not None:
+            emulator.close()
+
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_service(NAME, BenchConfig, idle_until_stopped, argv, description=__doc__)
+    return run_service(NAME, BenchConfig, body, argv, description=__doc__)

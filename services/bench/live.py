@@ -1,0 +1,260 @@
+"""Live bench: a simulated session played out in real time.
+
+One pass of the scenario (robot truth, device streams, camera) is simulated up front with the
+same models as offline generation, then played against the host clock, looping:
+- device samples leave through a pseudo-terminal in the device's own serial protocol
+  (tiplog.devproto), each written at its simulated host-arrival time, so the gateway's real
+  serial path stamps and publishes them;
+- camera: pixel tier renders each frame and publishes camera/image with its capture stamp;
+  measurement tier publishes vision/observation at its processing-done time; camera/info at 1 Hz;
+- ground truth on bench/robot (evaluation only) and the tool pose on bench/tf for Foxglove.
+
+Times in the simulated pass are relative to its start; pass k starts at host time
+t0 + k * duration, so stamps stay monotonic across loops.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+
+from services.bench import messages
+from services.bench.scenario import Scenario
+from services.bench.simulation import SimulatedSession, simulate_session
+from tiplog.bus import Bus
+from tiplog.clock import now_ns
+from tiplog.devproto.emulator import DeviceEmulator
+from tiplog.geometry import rot_to_quat
+from tiplog.v1 import robot_pb2, vision_pb2
+
+log = logging.getLogger(__name__)
+
+GYRO, ACCEL, TOF, MAG = range(4)
+_STREAMS = ("gyro", "accel", "tof", "mag")
+
+
+@dataclass
+class LiveCounters:
+    device_sent: int = 0
+    frames_published: int = 0
+    frames_skipped_late: int = 0
+    robot_published: int = 0
+    loops: int = 0
+
+
+def _device_schedule(sim: SimulatedSession) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All device samples in arrival order: (arrival_ns, stream code, index in stream)."""
+    t = np.concatenate([sim.streams[n].arrival_ns for n in _STREAMS])
+    kind = np.concatenate([np.full(len(sim.streams[n]), i, dtype=np.int8) for i, n in enumerate(_STREAMS)])
+    idx = np.concatenate([np.arange(len(sim.streams[n])) for n in _STREAMS])
+    order = np.argsort(t, kind="stable")
+    return t[order], kind[order], idx[order]
+
+
+class LiveBench:
+    """Plays `sim` in real time until `stop` is set. Threads: device+truth, camera."""
+
+    def __init__(
+        self,
+        sim: SimulatedSession,
+        bus: Bus,
+        emulator: DeviceEmulator | None,
+        stop: threading.Event,
+        *,
+        camera_tier: str = "pixel",
+        robot_rate_hz: float = 200.0,
+        tf_rate_hz: float = 30.0,
+        loop: bool = True,
+    ):
+        self.sim = sim
+        self.bus = bus
+        self.emulator = emulator
+        self.stop = stop
+        self.camera_tier = camera_tier
+        self.loop = loop
+        self.counters = LiveCounters()
+        self.duration_ns = int(sim.gt.t_ns[-1]) + 1_000_000
+        self._robot_period_ns = int(1e9 / robot_rate_hz)
+        self._tf_period_ns = int(1e9 / tf_rate_hz)
+        self._sched = _device_schedule(sim)
+        self._robot_pub = bus.publisher("bench/robot")
+        self._tf_pub = bus.publisher("bench/tf", reliable=False)
+        self._info_pub = bus.publisher("camera/info")
+        self._image_pub = bus.publisher("camera/image", reliable=False) if camera_tier == "pixel" else None
+        self._vision_pub = bus.publisher("vision/observation") if camera_tier == "measurement" else None
+        self.t0_ns = 0
+
+    # device and truth ------------------------------------------------------------
+    def _send_device(self, kind: int, i: int, loop_offset_ns: int) -> None:
+        s = self.sim.streams[_STREAMS[kind]]
+        dev_us = (int(s.device_ns[i]) + loop_offset_ns) // 1000
+        em = self.emulator
+        assert em is not None
+        if kind == GYRO:
+            em.send_gyro(dev_us, s.values[i].tolist())
+        elif kind == ACCEL:
+            em.send_accel(dev_us, s.values[i].tolist())
+        elif kind == MAG:
+            em.send_mag(dev_us, s.values[i].tolist())
+        else:
+            em.send_tof(
+                dev_us,
+                float(s.values[i]),
+                int(s.status[i]),
+                float(s.extra["smoothed_mm"][i]),
+                bool(s.extra["smoothed_valid"][i]),
+            )
+        self.counters.device_sent += 1
+
+    def _robot_message(self, i: int, stamp_ns: int, seq: int) -> robot_pb2.RobotState:
+        gt = self.sim.gt
+        r = np.asarray(gt.rcm_base_m, float)
+        R = gt.R_base_tool[i]
+        p = gt.p_tip_base_m[i]
+        u = R[:, 2]
+        depth = float((p - r) @ u)
+        m = robot_pb2.RobotState()
+        m.header.stamp_ns, m.header.seq, m.header.frame_id = stamp_ns, seq, "base"
+        m.q_rad.extend(gt.q_rad[i].tolist())
+        m.dq_radps.extend(gt.dq_radps[i].tolist())
+        m.tool_pose.position_m.x, m.tool_pose.position_m.y, m.tool_pose.position_m.z = p.tolist()
+        q = rot_to_quat(R)
+        o = m.tool_pose.orientation
+        o.x, o.y, o.z, o.w = q.tolist()
+        m.tip_m.x, m.tip_m.y, m.tip_m.z = p.tolist()
+        m.rcm_m.x, m.rcm_m.y, m.rcm_m.z = r.tolist()
+        m.depth_mm = depth * 1e3
+        m.rcm_error_mm = float(np.linalg.norm((p - r) - depth * u) * 1e3)
+        m.scenario = self.sim.scenario.name
+        m.trial = int(gt.trial[i])
+        m.phase = str(int(gt.phase[i]))
+        return m
+
+    def _tf_message(self, i: int, stamp_ns: int) -> FrameTransforms:
+        gt = self.sim.gt
+        msg = FrameTransforms()
+        for parent, child, T in (
+            ("base", "tool", None),
+            ("base", "camera", self.sim.truth.T_base_camera),
+        ):
+            tf = msg.transforms.add()
+            tf.timestamp.FromNanoseconds(stamp_ns)
+            tf.parent_frame_id, tf.child_frame_id = parent, child
+            R, p = (gt.R_base_tool[i], gt.p_tip_base_m[i]) if T is None else (T[:3, :3], T[:3, 3])
+            tf.translation.x, tf.translation.y, tf.translation.z = np.asarray(p, float).tolist()
+            q = rot_to_quat(np.asarray(R, float))
+            tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = q.tolist()
+        return msg
+
+    def _device_and_truth(self) -> None:
+        t_dev, kind, idx = self._sched
+        n_truth = len(self.sim.gt.t_ns)
+        robot_seq = 0
+        loop_k = 0
+        while not self.stop.is_set():
+            base = self.t0_ns + loop_k * self.duration_ns
+            off = loop_k * self.duration_ns
+            j = 0
+            next_robot = 0
+            next_tf = 0
+            next_hello = 0
+            while not self.stop.is_set():
+                rel = now_ns() - base
+                if rel >= self.duration_ns:
+                    break
+                # device samples due now (written at their simulated arrival time)
+                if self.emulator is not None:
+                    while j < len(t_dev) and t_dev[j] <= rel:
+                        self._send_device(int(kind[j]), int(idx[j]), off)
+                        j += 1
+                    if rel >= next_hello:
+                        self.emulator.send_hello((rel + off + self.sim.clock.offset_ns) // 1000)
+                        next_hello += 1_000_000_000
+                else:
+                    j = int(np.searchsorted(t_dev, rel, side="right"))
+                if rel >= next_robot:
+                    i = min(n_truth - 1, rel // 1_000_000)
+                    stamp = base + int(self.sim.gt.t_ns[i])
+                    self._robot_pub.put(self._robot_message(int(i), stamp, robot_seq))
+                    robot_seq += 1
+                    self.counters.robot_published += 1
+                    next_robot += self._robot_period_ns
+                    if rel >= next_tf:
+                        self._tf_pub.put(self._tf_message(int(i), stamp))
+                        next_tf += self._tf_period_ns
+                due = min(next_robot, t_dev[j] if j < len(t_dev) else next_robot)
+                wait_s = (base + due - now_ns()) * 1e-9
+                if wait_s > 0:
+                    self.stop.wait(min(wait_s, 0.05))
+            loop_k += 1
+            self.counters.loops = loop_k
+            if not self.loop:
+                self.stop.set()
+
+    # camera ---------------------------------------------------------------------
+    def _camera(self) -> None:
+        sim = self.sim
+        cam = sim.scenario.camera.model()
+        frames = sim.camera_frames
+        n = len(frames.t_true_ns)
+        loop_k = 0
+        next_info = 0
+        while not self.stop.is_set():
+            base = self.t0_ns + loop_k * self.duration_ns
+            for k in range(n):
+                if self.stop.is_set():
+                    return
+                due = base + int(frames.publish_ns[k])
+                wait_s = (due - now_ns()) * 1e-9
+                if wait_s > 0 and self.stop.wait(wait_s):
+                    return
+                if now_ns() - due > 2 * 66_666_667:  # more than two frames late: skip, keep real time
+                    self.counters.frames_skipped_late += 1
+                    continue
+                cap = base + int(frames.capture_ns[k])
+                if self._image_pub is not None:
+                    img = sim.render_frame(k)
+                    self._image_pub.put_bytes(messages.raw_image(img, cap, cam.frame_id))
+                elif self._vision_pub is not None:
+                    self._vision_pub.put_bytes(self._vision_payload(k, base))
+                self.counters.frames_published += 1
+                if now_ns() >= next_info:
+                    self._info_pub.put(cam.to_calibration(cap))
+                    next_info = now_ns() + 1_000_000_000
+            loop_k += 1
+            if not self.loop:
+                return
+
+    def _vision_payload(self, k: int, base: int) -> bytes:
+        m = vision_pb2.VisionObservation.FromString(self.sim.vision_payloads[k])
+        m.header.stamp_ns += base
+        m.processed_stamp_ns += base
+        return m.SerializeToString()
+
+    # run ------------------------------------------------------------------------
+    def run(self) -> None:
+        self.t0_ns = now_ns() + 50_000_000
+        threads = [threading.Thread(target=self._device_and_truth, name="bench-device", daemon=True)]
+        if self.camera_tier != "none":
+            threads.append(threading.Thread(target=self._camera, name="bench-camera", daemon=True))
+        for t in threads:
+            t.start()
+        self.stop.wait()
+        for t in threads:
+            t.join(timeout=1.0)
+
+
+def prepare(scenario: Scenario, seed: int, camera_tier: str, duration_s: float | None) -> SimulatedSession:
+    """Simulate one pass of the scenario for live playback."""
+    t = time.perf_counter()
+    tier = "pixel" if camera_tier == "pixel" else "measurement"
+    sim = simulate_session(scenario, seed, tier, duration_s)
+    log.info(
+        "simulated %s (%.1f s of motion) in %.1f s", scenario.name, sim.gt.t_ns[-1] * 1e-9, time.perf_counter() - t
+    )
+    return sim

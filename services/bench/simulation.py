@@ -1,0 +1,121 @@
+"""One simulated session in memory: robot truth, device streams and camera, before any output.
+
+Offline generation (session.py) writes it to MCAP; the live bench (live.py) plays it against
+the host clock. Both go through `simulate_session`, so live and offline sessions of the same
+scenario and seed carry the same samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from services.bench.calibration import as_calibrated, true_constants
+from services.bench.scenario import Scenario
+from services.bench.sensors import DeviceClock, Kinematics, Stream, _interp, _interp_R, arrival, simulate_sensors
+from services.bench.vision_model import VisionFrames, frame_times, simulate_vision
+
+TIERS = ("measurement", "pixel")
+
+
+@dataclass
+class CameraFrames:
+    """Per frame, relative to the session start [ns]: the instant shown, the capture stamp
+    (arrival on the host), and when the result is published (capture for pixel frames,
+    processing done for measurement-tier observations)."""
+
+    t_true_ns: np.ndarray
+    capture_ns: np.ndarray
+    publish_ns: np.ndarray
+
+
+@dataclass
+class SimulatedSession:
+    scenario: Scenario
+    seed: int
+    tier: str
+    motion_cfg: Any
+    truth: Any  # BenchConstants, evaluation only
+    calib: Any  # as-calibrated constants, for estimators
+    gt: Any  # motion.GroundTruth
+    kin: Kinematics
+    clock: DeviceClock
+    streams: dict[str, Stream]
+    camera_frames: CameraFrames
+    vision: VisionFrames | None = None  # measurement tier
+    vision_payloads: list[bytes] = field(default_factory=list)
+    _render_rng: np.random.Generator | None = None
+    _render_params: Any = None
+
+    def frame_pose_cam(self, k: int) -> np.ndarray:
+        """T_camera_tool (4x4) at the instant frame k shows."""
+        t = self.camera_frames.t_true_ns[k : k + 1]
+        T = np.eye(4)
+        T[:3, :3] = _interp_R(t, self.kin.t_ns, self.kin.R_base_tool)[0]
+        T[:3, 3] = _interp(t, self.kin.t_ns, self.kin.p_tip_base_m)[0]
+        return np.linalg.inv(self.truth.T_base_camera) @ T
+
+    def render_frame(self, k: int) -> np.ndarray:
+        """Pixel tier: frame k as uint8 (H, W, 3) RGB."""
+        from services.bench import render
+
+        if self._render_params is None:
+            sc = self.scenario
+            self._render_params = sc.render.model_copy(
+                update={
+                    "shaft_radius_m": sc.instrument.shaft_radius_m,
+                    "junction_from_tip_mm": max(2.0, sc.instrument.junction_proximal_m * 1e3),
+                }
+            )
+        assert self._render_rng is not None
+        return render.render_frame(
+            self.scenario.camera.model(), self.frame_pose_cam(k), self._render_params, self._render_rng
+        )
+
+
+def commanded_through_hand_eye(scenario: Scenario, truth: Any, calib: Any) -> Any:
+    """The paper commanded trials along camera axes through its estimated hand-eye: unless the
+    scenario sets motion.command_camera_error_deg itself, use the as-calibrated camera
+    rotation (R_cmd = R_true E, E = R_true^T R_cal)."""
+    mc = scenario.motion
+    if not hasattr(mc, "command_camera_error_deg") or any(abs(v) > 0 for v in mc.command_camera_error_deg):
+        return mc
+    E = truth.T_base_camera[:3, :3].T @ calib.T_base_camera[:3, :3]
+    rpy = Rotation.from_matrix(E).as_euler("xyz", degrees=True)  # R = Rz Ry Rx, as rpy_to_matrix
+    return mc.model_copy(update={"command_camera_error_deg": tuple(float(v) for v in rpy)})
+
+
+def simulate_session(
+    scenario: Scenario, seed: int = 0, tier: str = "measurement", duration_s: float | None = None
+) -> SimulatedSession:
+    """Robot, sensors and camera for `scenario` (seeded; `duration_s` cuts the protocol)."""
+    from services.bench import motion  # Pinocchio: imported only when simulating
+
+    if tier not in TIERS:
+        raise ValueError(f"tier must be one of {', '.join(TIERS)} (got {tier!r})")
+    duration = duration_s if duration_s is not None else scenario.duration_s
+    s_motion, s_cal, s_sens, s_vis = np.random.SeedSequence(seed).spawn(4)
+    truth = true_constants(scenario)
+    calib = as_calibrated(truth, scenario, np.random.default_rng(s_cal))
+    motion_cfg = commanded_through_hand_eye(scenario, truth, calib)
+    gt = motion.simulate(motion_cfg, scenario.protocol, int(s_motion.generate_state(1)[0]), duration)
+    truth.rcm_base_m = np.asarray(gt.rcm_base_m, dtype=float)
+    kin, clock, streams = simulate_sensors(gt, scenario, truth, np.random.default_rng(s_sens))
+    vrng = np.random.default_rng(s_vis)
+    sim = SimulatedSession(scenario, seed, tier, motion_cfg, truth, calib, gt, kin, clock, streams, None)  # type: ignore[arg-type]
+    if tier == "measurement":
+        from services.bench import messages
+
+        v = simulate_vision(kin, scenario, truth, vrng)
+        sim.vision = v
+        sim.camera_frames = CameraFrames(v.t_true_ns, v.capture_ns, v.processed_ns)
+        sim.vision_payloads = messages.vision(v).payloads
+    else:
+        t = frame_times(scenario, int(kin.t_ns[-1]), vrng)
+        cap = arrival(t, scenario.camera.latency_ms, scenario.camera.latency_jitter_ms, vrng)
+        sim.camera_frames = CameraFrames(t, cap, cap)
+        sim._render_rng = vrng
+    return sim
