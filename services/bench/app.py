@@ -5,6 +5,7 @@ ground truth on the bus."""
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from typing import Literal
 
@@ -31,21 +32,44 @@ class BenchConfig(ServiceConfig):
     tf_rate_hz: float = Field(30.0, gt=0.0, le=200.0)
 
 
-def body(ctx: ServiceContext[BenchConfig]) -> None:
-    # Heavy imports (Pinocchio, renderer) only once the service is on the bus.
-    from services.bench.live import LiveBench, prepare
+def _prepare(cfg: BenchConfig):
+    """Scenario + one simulated pass (imports Pinocchio and the models: seconds)."""
+    from services.bench.live import prepare
     from services.bench.scenario import load_scenario
+
+    scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
+    return prepare(scenario, cfg.seed, cfg.camera_tier, cfg.duration_s)
+
+
+def body(ctx: ServiceContext[BenchConfig]) -> None:
+    cfg = ctx.config
+    # Imports and simulation take seconds: a daemon thread does them so that a signal still
+    # stops the service at once (the thread is abandoned with the process).
+    result: list = []
+    ready = threading.Event()
+
+    def work() -> None:
+        try:
+            result.append(_prepare(cfg))
+        except Exception as e:  # reported on the main thread
+            result.append(e)
+        finally:
+            ready.set()
+
+    threading.Thread(target=work, name="bench-prepare", daemon=True).start()
+    while not ready.wait(0.1):
+        if ctx.stop.is_set():
+            return
+    if isinstance(result[0], ConfigError):
+        ctx.log.error("%s", result[0])
+        raise SystemExit(2)
+    if isinstance(result[0], Exception):
+        raise result[0]
+    sim = result[0]
+
+    from services.bench.live import LiveBench
     from tiplog.devproto.emulator import DeviceEmulator
 
-    cfg = ctx.config
-    try:
-        scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
-    except ConfigError as e:
-        ctx.log.error("%s", e)
-        raise SystemExit(2) from None
-    sim = prepare(scenario, cfg.seed, cfg.camera_tier, cfg.duration_s)
-    if ctx.stop.is_set():
-        return
     emulator = None
     if cfg.device_link:
         emulator = DeviceEmulator(cfg.device_link, drop_without_host=True)
