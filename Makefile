@@ -20,7 +20,7 @@ browser:
 	bash scripts/install-browser.sh
 
 demo: $(STAMP)
-	$(VENV)/bin/tiplog up
+	$(VENV)/bin/tiplog up -c config/demo.yaml
 
 # The TypeScript MCAP reader (@mcap/core) for the recorder's interoperability test; pinned by
 # its package-lock.json. Without npm the test skips and says why.

@@ -15,6 +15,7 @@ import queue
 import random
 import struct
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeVar
@@ -50,6 +51,9 @@ class BusConfig(BaseModel):
     multicast_scouting: bool = False
     # Shared memory for large payloads between processes on one host (zenoh default: on).
     shared_memory: bool = True
+    # A client cannot open until its router answers: retry this long (compose starts the
+    # router and the services together; a cart boots them in any order).
+    open_timeout_s: float = Field(30.0, ge=0.0, le=3600.0)
 
     @field_validator("prefix")
     @classmethod
@@ -248,15 +252,36 @@ class Bus:
     """One Zenoh session with the tiplog key prefix. Use as a context manager: the session
     and everything declared on it is closed on exit (an unclosed queryable hangs exit)."""
 
-    def __init__(self, config: BusConfig | None = None, service: str | None = None):
+    def __init__(
+        self, config: BusConfig | None = None, service: str | None = None, stop: threading.Event | None = None
+    ):
         self.config = config or BusConfig()
         self.prefix = self.config.prefix
         self.service = service
-        self.session = zenoh.open(self.config.zenoh_config())
+        self.session = self._open(stop)
         self._declared: list[Any] = []
         self._closed = False
         if service:
             self._declared.append(self.session.liveliness().declare_token(self.key(f"{topics.ALIVE}/{service}")))
+
+    def _open(self, stop: threading.Event | None) -> zenoh.Session:
+        deadline = time.monotonic() + self.config.open_timeout_s
+        delay = 0.1
+        while True:
+            try:
+                return zenoh.open(self.config.zenoh_config())
+            except zenoh.ZError as e:
+                if time.monotonic() + delay > deadline:
+                    raise ConnectionError(
+                        f"bus: no router answered at {', '.join(self.config.connect) or '(no endpoint)'} "
+                        f"within {self.config.open_timeout_s:g} s ({e})"
+                    ) from None
+                log.info("bus: waiting for %s (%s)", ", ".join(self.config.connect), str(e).split(" at ")[0])
+                if stop is not None and stop.wait(delay):
+                    raise ConnectionError("bus: stopped while waiting for the router") from None
+                if stop is None:
+                    time.sleep(delay)
+                delay = min(2.0, delay * 2)
 
     # keys -----------------------------------------------------------------
     def key(self, topic: str) -> str:

@@ -121,7 +121,12 @@ def run_service(
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with Bus(config.bus, service=name) as bus:
+        try:
+            bus = Bus(config.bus, service=name, stop=stop)
+        except ConnectionError as e:
+            slog.error("%s", e)
+            return 0 if stop.is_set() else 1
+        with bus:
             ctx = ServiceContext(name=name, config=config, bus=bus, stop=stop, log=slog, args=args)
             slog.info("up on %s (mode %s)", config.bus.prefix, config.bus.mode)
             body(ctx)

@@ -143,3 +143,26 @@ def test_bus_config_rejects_bad_values():
         BusConfig(prefix="tiplog")
     with pytest.raises(ValueError, match="endpoint"):
         BusConfig(connect=["127.0.0.1:7447"])
+
+
+def test_client_waits_for_a_router_that_comes_later(endpoint):
+    opened = threading.Event()
+    holder: list[Bus] = []
+
+    def open_client() -> None:
+        holder.append(Bus(BusConfig(mode="client", connect=[endpoint], listen=[], open_timeout_s=30)))
+        opened.set()
+
+    t = threading.Thread(target=open_client)
+    t.start()
+    assert not opened.wait(0.3)  # no router yet: still waiting, not failed
+    with Bus(BusConfig(mode="router", listen=[endpoint], connect=[])):
+        assert opened.wait(20)
+        holder[0].close()
+    t.join()
+
+
+def test_client_without_router_fails_with_a_clear_error(endpoint):
+    stop = threading.Event()
+    with pytest.raises(ConnectionError, match=r"no router answered at tcp/127\.0\.0\.1:\d+ within 0\.3 s"):
+        Bus(BusConfig(mode="client", connect=[endpoint], listen=[], open_timeout_s=0.3), stop=stop)
