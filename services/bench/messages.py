@@ -14,6 +14,7 @@ from tiplog.geometry import rot_to_quat
 from tiplog.v1 import device_pb2, robot_pb2, vision_pb2
 
 RAW_IMAGE = RawImage.DESCRIPTOR.full_name
+VISION = vision_pb2.VisionObservation.DESCRIPTOR.full_name
 
 
 @dataclass
@@ -112,7 +113,7 @@ def vision(f: VisionFrames) -> Batch:
         m.processing_ms = float(f.processing_ms[k])
         m.line_residual_px = float(f.line_residual_px[k])
         out.append(m.SerializeToString())
-    return Batch("vision/observation", vision_pb2.VisionObservation.DESCRIPTOR.full_name, f.processed_ns, out)
+    return Batch("vision/observation", VISION, f.processed_ns, out)
 
 
 def robot(gt, rate_hz: float, scenario: str) -> Batch:

@@ -21,25 +21,15 @@ from typing import Any
 
 import numpy as np
 import yaml
-from scipy.spatial.transform import Rotation
 
 from services.bench import messages
-from services.bench.calibration import as_calibrated, true_constants
 from services.bench.scenario import Scenario, scenario_dict
-from services.bench.sensors import simulate_sensors
-from services.bench.vision_model import frame_times, simulate_vision
+from services.bench.simulation import TIERS, SimulatedSession, simulate_session
 from tiplog import __version__
 from tiplog.mcap_io import McapWriter
 
 log = logging.getLogger(__name__)
-TIERS = ("measurement", "pixel")
 Progress = Callable[[str, float], None]
-
-
-def _motion():
-    from services.bench import motion  # the robot helper's module; imported late (Pinocchio)
-
-    return motion
 
 
 def generate(
@@ -57,22 +47,13 @@ def generate(
     prog = progress or (lambda stage, frac: None)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    duration = duration_s if duration_s is not None else scenario.duration_s
-    ss = np.random.SeedSequence(seed)
-    s_motion, s_cal, s_sens, s_vis = ss.spawn(4)
-    truth = true_constants(scenario)
-    calib = as_calibrated(truth, scenario, np.random.default_rng(s_cal))
-    motion_cfg = _commanded_through_hand_eye(scenario, truth, calib)
     prog("robot", 0.0)
-    gt = _motion().simulate(motion_cfg, scenario.protocol, int(s_motion.generate_state(1)[0]), duration)
-    timings["robot_s"] = time.perf_counter() - t0
-    truth.rcm_base_m = np.asarray(gt.rcm_base_m, dtype=float)
-    prog("sensors", 0.2)
-    t1 = time.perf_counter()
-    kin, clock, streams = simulate_sensors(gt, scenario, truth, np.random.default_rng(s_sens))
-    vrng = np.random.default_rng(s_vis)
-    frames = simulate_vision(kin, scenario, truth, vrng) if tier == "measurement" else None
-    timings["models_s"] = time.perf_counter() - t1
+    sim = simulate_session(scenario, seed, tier, duration_s)
+    gt, clock, streams, calib, truth = sim.gt, sim.clock, sim.streams, sim.calib, sim.truth
+    motion_cfg = sim.motion_cfg
+    frames = sim.vision
+    timings["simulate_s"] = time.perf_counter() - t0
+    prog("encode", 0.2)
 
     t2 = time.perf_counter()
     batches: list[messages.Batch] = [
@@ -85,10 +66,10 @@ def generate(
     cam = scenario.camera.model()
     first_cam_ns = 0
     if frames is not None:
-        batches.append(messages.vision(frames))
+        batches.append(messages.Batch("vision/observation", messages.VISION, frames.processed_ns, sim.vision_payloads))
         first_cam_ns = int(frames.capture_ns[0]) if len(frames) else 0
     else:
-        batches.append(_pixel_batch(kin, scenario, truth, vrng, prog))
+        batches.append(_pixel_batch(sim, prog))
         first_cam_ns = int(batches[-1].log_ns[0]) if len(batches[-1].log_ns) else 0
     timings["encode_s"] = time.perf_counter() - t2
 
@@ -144,48 +125,16 @@ def generate(
     }
 
 
-def _commanded_through_hand_eye(scenario: Scenario, truth, calib):
-    """The paper commanded trials along camera axes through its estimated hand-eye: unless the
-    scenario sets motion.command_camera_error_deg itself, use the as-calibrated camera
-    rotation (R_cmd = R_true E, E = R_true^T R_cal)."""
-    mc = scenario.motion
-    if any(abs(v) > 0 for v in getattr(mc, "command_camera_error_deg", (0.0, 0.0, 0.0))) or not hasattr(
-        mc, "command_camera_error_deg"
-    ):
-        return mc
-    E = truth.T_base_camera[:3, :3].T @ calib.T_base_camera[:3, :3]
-    rpy = Rotation.from_matrix(E).as_euler("xyz", degrees=True)  # R = Rz Ry Rx, as rpy_to_matrix
-    return mc.model_copy(update={"command_camera_error_deg": tuple(float(v) for v in rpy)})
-
-
-def _pixel_batch(kin, scenario: Scenario, truth, rng: np.random.Generator, prog: Progress) -> messages.Batch:
-    try:
-        from services.bench import render
-    except ImportError as e:
-        raise RuntimeError(f"pixel tier needs services/bench/render.py ({e})") from None
-    from services.bench.sensors import _interp, _interp_R, arrival
-
-    cam = scenario.camera.model()
-    params = scenario.render.model_copy(
-        update={
-            "shaft_radius_m": scenario.instrument.shaft_radius_m,
-            "junction_from_tip_mm": max(2.0, scenario.instrument.junction_proximal_m * 1e3),
-        }
-    )
-    t = frame_times(scenario, int(kin.t_ns[-1]), rng)
-    R = _interp_R(t, kin.t_ns, kin.R_base_tool)
-    p = _interp(t, kin.t_ns, kin.p_tip_base_m)
-    T_cam_base = np.linalg.inv(truth.T_base_camera)
-    cap = arrival(t, scenario.camera.latency_ms, scenario.camera.latency_jitter_ms, rng)
+def _pixel_batch(sim: SimulatedSession, prog: Progress) -> messages.Batch:
+    """camera/image: every frame of the pass rendered, stamped with its capture time."""
+    frames = sim.camera_frames
+    frame_id = sim.scenario.camera.model().frame_id
     payloads = []
-    for k in range(len(t)):
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R[k], p[k]
-        img = render.render_frame(cam, T_cam_base @ T, params, rng)
-        payloads.append(messages.raw_image(img, int(cap[k]), cam.frame_id))
+    for k in range(len(frames.t_true_ns)):
+        payloads.append(messages.raw_image(sim.render_frame(k), int(frames.capture_ns[k]), frame_id))
         if k % 50 == 0:
-            prog("render", 0.2 + 0.2 * k / max(len(t), 1))
-    return messages.Batch("camera/image", messages.RAW_IMAGE, cap, payloads)
+            prog("render", 0.2 + 0.2 * k / max(len(frames.t_true_ns), 1))
+    return messages.Batch("camera/image", messages.RAW_IMAGE, frames.capture_ns, payloads)
 
 
 def _jsonable(x: Any) -> Any:
