@@ -105,7 +105,27 @@ def decode_attachment(raw: bytes | None) -> tuple[int, int, int, str]:
     return seq, pub_ns, pid, raw[_ATTACH.size :].decode(errors="replace")
 
 
-class Publisher(Generic[M]):
+def _sample_info(bus: Bus, sample: zenoh.Sample) -> SampleInfo:
+    recv = now_ns()
+    att = sample.attachment
+    seq, pub_ns, pid, type_name = decode_attachment(att.to_bytes() if att is not None else None)
+    return SampleInfo(bus.topic_of(str(sample.key_expr)), seq, pub_ns, recv, pid, type_name)
+
+
+class _Closing:
+    """Context manager calling close() on exit."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Publisher(_Closing, Generic[M]):
     """Typed publisher for one topic. `put(msg)` serialises and sends."""
 
     def __init__(self, bus: Bus, topic: str, msg_type: type[M], reliable: bool):
@@ -134,14 +154,8 @@ class Publisher(Generic[M]):
     def close(self) -> None:
         self._pub.undeclare()
 
-    def __enter__(self) -> Publisher[M]:
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class Subscriber(Generic[M]):
+class Subscriber(_Closing, Generic[M]):
     """Typed subscriber. With a callback, it is called on Zenoh's thread with
     `(msg, info)`: keep it short. Without one, messages queue (bounded, oldest dropped and
     counted) and `recv()` takes them on the caller's thread."""
@@ -164,11 +178,8 @@ class Subscriber(Generic[M]):
         self._sub = bus.session.declare_subscriber(bus.key(key_expr), self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        recv = now_ns()
-        topic = self._bus.topic_of(str(sample.key_expr))
-        att = sample.attachment
-        seq, pub_ns, pid, type_name = decode_attachment(att.to_bytes() if att is not None else None)
-        info = SampleInfo(topic, seq, pub_ns, recv, pid, type_name)
+        info = _sample_info(self._bus, sample)
+        topic, type_name = info.topic, info.type_name
         try:
             # A payload without a tiplog attachment, or naming another type, is as undecodable
             # as a corrupt one: a protobuf parser accepts many random byte strings.
@@ -213,14 +224,8 @@ class Subscriber(Generic[M]):
     def close(self) -> None:
         self._sub.undeclare()
 
-    def __enter__(self) -> Subscriber[M]:
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class RawSubscriber:
+class RawSubscriber(_Closing):
     """Undecoded payloads with their info, for the recorder: `callback(payload, info)`."""
 
     def __init__(self, bus: Bus, key_expr: str, callback: Callable[[bytes, SampleInfo], None]):
@@ -229,23 +234,14 @@ class RawSubscriber:
         self._sub = bus.session.declare_subscriber(bus.key(key_expr), self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        recv = now_ns()
-        topic = self._bus.topic_of(str(sample.key_expr))
-        att = sample.attachment
-        seq, pub_ns, pid, type_name = decode_attachment(att.to_bytes() if att is not None else None)
+        info = _sample_info(self._bus, sample)
         try:
-            self._callback(sample.payload.to_bytes(), SampleInfo(topic, seq, pub_ns, recv, pid, type_name))
+            self._callback(sample.payload.to_bytes(), info)
         except Exception:
-            log.exception("raw subscriber callback for %s raised", topic)
+            log.exception("raw subscriber callback for %s raised", info.topic)
 
     def close(self) -> None:
         self._sub.undeclare()
-
-    def __enter__(self) -> RawSubscriber:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 class Bus:

@@ -39,7 +39,8 @@ class ServiceConfig(BaseModel):
     status_period_s: float = Field(1.0, gt=0.0, le=60.0)
 
 
-def _set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
+def set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
+    """Set data['a']['b'] = value for dotted 'a.b', creating sections as needed."""
     parts = [p for p in dotted.split(".") if p]
     if not parts:
         raise ConfigError(f"override {dotted!r}: empty field name")
@@ -129,7 +130,7 @@ def load_config(
     for o in overrides:
         pairs.append(parse_override(o) if isinstance(o, str) else o)
     for key, value in pairs:
-        _set_path(data, key, value)
+        set_path(data, key, value)
     try:
         return model.model_validate(data)
     except ValidationError as e:

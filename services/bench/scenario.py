@@ -15,7 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from tiplog.camera_model import CameraModel
-from tiplog.config import ConfigError, format_validation_error, parse_override
+from tiplog.config import ConfigError, format_validation_error, parse_override, set_path
 
 try:  # the robot helper's motion configuration (services/bench/motion.py)
     from services.bench.motion import MotionConfig
@@ -247,18 +247,6 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
-    parts = [p for p in dotted.split(".") if p]
-    if not parts:
-        raise ConfigError(f"scenario error: override {dotted!r} has an empty field name")
-    node = data
-    for p in parts[:-1]:
-        node = node.setdefault(p, {})
-        if not isinstance(node, dict):
-            raise ConfigError(f"scenario error: {dotted}: {p} is not a section")
-    node[parts[-1]] = value
-
-
 def load_scenario(name_or_path: str | Path, overrides: list[str] | dict[str, Any] | None = None) -> Scenario:
     """A built-in scenario by name, or a YAML file (optionally `base: <builtin>`), then
     overrides ('section.field=value' strings or a {dotted: value} dict). Raises ConfigError
@@ -282,7 +270,7 @@ def load_scenario(name_or_path: str | Path, overrides: list[str] | dict[str, Any
         data = _merge(_merge({"name": p.stem, "motion": dict(MOTION_DEFAULTS)}, BUILTIN[base] if base else {}), doc)
     pairs = overrides.items() if isinstance(overrides, dict) else [parse_override(o) for o in overrides or []]
     for k, v in pairs:
-        _set_dotted(data, k, v)
+        set_path(data, k, v)
     try:
         return Scenario.model_validate(data)
     except ValidationError as e:
