@@ -7,6 +7,7 @@ scenario and seed carry the same samples.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,6 +48,7 @@ class SimulatedSession:
     camera_frames: CameraFrames
     vision: VisionFrames | None = None  # measurement tier
     vision_payloads: list[bytes] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
     _render_rng: np.random.Generator | None = None
     _render_params: Any = None
 
@@ -96,6 +98,7 @@ def simulate_session(
 
     if tier not in TIERS:
         raise ValueError(f"tier must be one of {', '.join(TIERS)} (got {tier!r})")
+    t0 = time.perf_counter()
     duration = duration_s if duration_s is not None else scenario.duration_s
     s_motion, s_cal, s_sens, s_vis = np.random.SeedSequence(seed).spawn(4)
     truth = true_constants(scenario)
@@ -103,6 +106,7 @@ def simulate_session(
     motion_cfg = commanded_through_hand_eye(scenario, truth, calib)
     gt = motion.simulate(motion_cfg, scenario.protocol, int(s_motion.generate_state(1)[0]), duration)
     truth.rcm_base_m = np.asarray(gt.rcm_base_m, dtype=float)
+    t_robot = time.perf_counter()
     kin, clock, streams = simulate_sensors(gt, scenario, truth, np.random.default_rng(s_sens))
     vrng = np.random.default_rng(s_vis)
     sim = SimulatedSession(scenario, seed, tier, motion_cfg, truth, calib, gt, kin, clock, streams, None)  # type: ignore[arg-type]
@@ -118,4 +122,5 @@ def simulate_session(
         cap = arrival(t, scenario.camera.latency_ms, scenario.camera.latency_jitter_ms, vrng)
         sim.camera_frames = CameraFrames(t, cap, cap)
         sim._render_rng = vrng
+    sim.timings = {"robot_s": t_robot - t0, "models_s": time.perf_counter() - t_robot}
     return sim
