@@ -139,7 +139,11 @@ def format_info(info: dict[str, Any]) -> str:
     """The dict of `inspect` as a human-readable report."""
     out = [
         f"file:      {info['file']} ({info['bytes'] / 2**20:.1f} MiB{'' if info['indexed'] else ', NOT INDEXED: run tiplog record recover'})",
-        f"duration:  {info['duration_s']:.3f} s ({info['start_ns']} .. {info['end_ns']} ns)",
+        (
+            f"duration:  {info['duration_s']:.3f} s ({info['start_ns']} .. {info['end_ns']} ns)"
+            if info["start_ns"] is not None
+            else "duration:  - (no complete message could be read)"
+        ),
         f"messages:  {info['messages']}   gaps (from sequence): {info['gaps']}",
         "",
         f"{'topic':<22}{'type':<36}{'count':>9}{'rate Hz':>10}{'MiB':>9}{'gaps':>7}",
