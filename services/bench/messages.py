@@ -10,6 +10,7 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from services.bench.sensors import Stream
 from services.bench.vision_model import VisionFrames
+from tiplog import images
 from tiplog.geometry import rot_to_quat
 from tiplog.v1 import device_pb2, robot_pb2, vision_pb2
 
@@ -152,12 +153,5 @@ def robot(gt, rate_hz: float, scenario: str) -> Batch:
 
 
 def raw_image(img: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
-    """A foxglove RawImage (rgb8) of an (H, W, 3) uint8 frame."""
-    m = RawImage()
-    m.timestamp.FromNanoseconds(int(stamp_ns))
-    m.frame_id = frame_id
-    m.height, m.width = int(img.shape[0]), int(img.shape[1])
-    m.encoding = "rgb8"
-    m.step = int(img.shape[1] * 3)
-    m.data = np.ascontiguousarray(img, dtype=np.uint8).tobytes()
-    return m.SerializeToString()
+    """A serialised foxglove RawImage (rgb8) of an (H, W, 3) uint8 frame."""
+    return images.raw_image(img, stamp_ns, frame_id).SerializeToString()

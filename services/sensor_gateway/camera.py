@@ -17,6 +17,7 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from tiplog.bus import Bus
 from tiplog.clock import NS_PER_S, now_ns
+from tiplog.images import raw_image
 
 from .cameras import Camera, CameraConfig, CameraReadError, EndOfStreamError, Frame, Intrinsics, make_camera
 from .cameras.calibration import to_message
@@ -148,14 +149,4 @@ class CameraRunner:
     @staticmethod
     def to_raw_image(frame: Frame) -> RawImage:
         """foxglove.RawImage stamped with the frame's arrival, frame_id "camera"."""
-        img = frame.image
-        m = RawImage(
-            frame_id="camera",
-            width=img.shape[1],
-            height=img.shape[0],
-            encoding=frame.encoding,
-            step=img.shape[1] * 3,
-            data=img.tobytes(),
-        )
-        m.timestamp.FromNanoseconds(frame.stamp_ns)
-        return m
+        return raw_image(frame.image, frame.stamp_ns, "camera", frame.encoding)
