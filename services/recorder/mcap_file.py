@@ -14,6 +14,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
@@ -76,10 +77,19 @@ class RecordingFile:
             self._raw.close()
             raise
         self.good_offset = 0  # end of the last complete record written (a valid prefix)
+        # Earlier boundaries too: on a full disk the ~30-byte end of file may not fit after the
+        # last one, and cutting back one more record frees the room for it.
+        self._boundaries: deque[int] = deque(maxlen=16)
         self.written_by_topic: dict[str, int] = {}
         self.first_log_ns: int | None = None
         self.last_log_ns: int | None = None
         self.closed = False
+
+    def _mark(self) -> None:
+        pos = self._stream.position
+        if pos != self.good_offset:
+            self._boundaries.append(self.good_offset)
+        self.good_offset = pos
 
     @property
     def bytes_written(self) -> int:
@@ -89,7 +99,7 @@ class RecordingFile:
         self.writer.write_raw(topic, type_name, payload, log_ns, publish_ns, sequence)
         # A call that returns leaves the stream at a record boundary (a whole chunk and its
         # message indexes, or nothing): the file is valid up to here.
-        self.good_offset = self._stream.position
+        self._mark()
         self.written_by_topic[topic] = self.written_by_topic.get(topic, 0) + 1
         if self.first_log_ns is None:
             self.first_log_ns = log_ns
@@ -97,15 +107,15 @@ class RecordingFile:
 
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         self.writer.add_metadata(name, data)
-        self.good_offset = self._stream.position
+        self._mark()
 
     def add_attachment(self, name: str, data: bytes, media_type: str, log_ns: int) -> None:
         self.writer.add_attachment(name, data, media_type, log_ns)
-        self.good_offset = self._stream.position
+        self._mark()
 
     def flush(self) -> None:
         self.writer.flush()
-        self.good_offset = self._stream.position
+        self._mark()
 
     def fsync(self) -> None:
         self._stream.fsync()
@@ -130,19 +140,32 @@ class RecordingFile:
             return True
         self.closed = True
         ok = False
-        try:
-            self._raw.truncate(self.good_offset)
-            self._raw.seek(self.good_offset)
-            rb = RecordBuilder()
-            DataEnd(0).write(rb)
-            Footer(0, 0, 0).write(rb)
-            tail = rb.end() + MAGIC
-            self._stream.position = self.good_offset
-            self._stream.write(tail)
-            self._raw.flush()
-            ok = True
-        except OSError as e:
-            log.error("could not end %s after a write failure (%s); `tiplog record recover` reads it", self.path, e)
+        last_error: OSError | None = None
+        rb = RecordBuilder()
+        DataEnd(0).write(rb)
+        Footer(0, 0, 0).write(rb)
+        tail = rb.end() + MAGIC
+        candidates = [self.good_offset, *reversed(self._boundaries)]
+        for offset in candidates:
+            try:
+                self._raw.truncate(offset)
+                self._raw.seek(offset)
+                self._stream.position = offset
+                self._stream.write(tail)
+                self._raw.flush()
+                ok = True
+                if offset != self.good_offset:
+                    log.warning(
+                        "%s: cut back %d bytes more to make room for its end", self.path, self.good_offset - offset
+                    )
+                    self.good_offset = offset
+                break
+            except OSError as e:
+                last_error = e
+        if not ok:
+            log.error(
+                "could not end %s after a write failure (%s); `tiplog record recover` reads it", self.path, last_error
+            )
         try:
             self._raw.close()
         except OSError as e:

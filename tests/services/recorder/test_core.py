@@ -287,3 +287,31 @@ def test_a_session_name_used_twice_never_overwrites(tmp_path):
     files = sorted(tmp_path.glob("same_*.mcap"))
     assert [f.name for f in files] == ["same_000.mcap", "same_001.mcap"]
     assert [[r.sequence for r in read_messages(f)] for f in files] == [[0], [1]]
+
+
+def test_salvage_cuts_back_further_when_the_end_of_file_does_not_fit(tmp_path):
+    """The disk fills a few bytes after a record boundary: no room for DataEnd + Footer there,
+    so the file must end at the boundary before it, still valid without recovery."""
+    from services.recorder.mcap_file import RecordingFile
+
+    def write_all(f: RecordingFile, n: int) -> list[int]:
+        offsets = []
+        for k in range(n):
+            f.write("device/gyro", "tiplog.v1.Gyro", gyro(k), 1000 * k, 1000 * k, k)
+            f.flush()
+            offsets.append(f.good_offset)
+        return offsets
+
+    probe = RecordingFile(tmp_path / "probe.mcap", compression="none", chunk_size=1 << 20)
+    offsets = write_all(probe, 6)
+    probe.close()
+    capacity = offsets[3] + 10  # room for the 4th record's end, not for the 5th nor the footer
+    f = RecordingFile(
+        tmp_path / "full.mcap", compression="none", chunk_size=1 << 20, opener=lambda p: FullDisk(p, capacity)
+    )
+    with pytest.raises(OSError):
+        write_all(f, 6)
+    assert f.salvage()
+    got = list(read_messages(tmp_path / "full.mcap"))
+    assert [r.sequence for r in got] == [0, 1, 2]
+    assert (tmp_path / "full.mcap").stat().st_size <= capacity
