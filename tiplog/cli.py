@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from tiplog import __version__
 from tiplog.config import ConfigError
 from tiplog.service import setup_logging
+from tiplog.userio import UserError
 
 # command -> (module providing register(parser), one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -53,6 +54,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(func(args) or 0)
     except ConfigError as e:
         print(str(e), file=sys.stderr)
+        return 2
+    except UserError as e:
+        print(f"tiplog {args.command}: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

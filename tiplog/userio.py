@@ -1,0 +1,80 @@
+"""How every `tiplog` subcommand meets a user's mistake: one line naming the file or option and
+what is wrong, exit status 2, no traceback (see `tiplog.cli.main`). Inputs are checked before
+any work starts; outputs are never overwritten without `--force` and are written under a
+temporary name in the same folder, renamed only when complete, so an interrupted command never
+leaves a half-written file under the final name."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+class UserError(Exception):
+    """A mistake in what the user gave (a file, an option): printed as one line, exit 2."""
+
+
+def input_file(path: str | os.PathLike, what: str = "input file") -> Path:
+    """`path` as a readable, non-empty regular file, or UserError naming what is wrong."""
+    p = Path(path)
+    if not p.exists():
+        raise UserError(f"{p}: no such {what}")
+    if p.is_dir():
+        raise UserError(f"{p}: is a folder, expected a {what}")
+    if not os.access(p, os.R_OK):
+        raise UserError(f"{p}: permission denied (cannot read the {what})")
+    if p.stat().st_size == 0:
+        raise UserError(f"{p}: empty file")
+    return p
+
+
+def input_mcap(path: str | os.PathLike) -> Path:
+    """`path` as a readable file that starts with the MCAP magic, or UserError."""
+    p = input_file(path, "MCAP file")
+    try:
+        with open(p, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError as e:
+        raise UserError(f"{p}: cannot read ({e.strerror or e})") from None
+    if head != MCAP_MAGIC:
+        raise UserError(f"{p}: not an MCAP file")
+    return p
+
+
+def output_file(path: str | os.PathLike, force: bool = False) -> Path:
+    """`path` as a place a new file may be written: its folder exists and is writable, and it
+    does not exist unless `force`; otherwise UserError."""
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise UserError(f"{p}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise UserError(f"{p}: folder {parent} is not writable")
+    if p.is_dir():
+        raise UserError(f"{p}: is a folder, expected a file name")
+    if p.exists() and not force:
+        raise UserError(f"{p}: file exists, use --force to overwrite it")
+    return p
+
+
+@contextmanager
+def atomic_output(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
+    """Yield a temporary path beside `path`; on success rename it to `path`, on any exception
+    (Ctrl-C included) remove it. Checks `output_file` first."""
+    final = output_file(path, force)
+    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent or ".")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        if final.exists() and not force:  # appeared while we worked
+            raise UserError(f"{final}: file exists, use --force to overwrite it")
+        os.replace(tmp_path, final)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
