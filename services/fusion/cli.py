@@ -1,18 +1,20 @@
-"""`tiplog fusion`: the filter offline on a recording."""
+"""`tiplog fusion`: the filter offline on a recording (`run`), and the IMU's attitude alone
+(`attitude`). Each action's arguments and work live in its own module."""
 
 from __future__ import annotations
 
 import argparse
 
-from tiplog.pending import not_yet
+from services.fusion import attitude_cli, run_cli
 
 
 def register(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recording", help="MCAP file with device and vision topics")
-    p.add_argument("--out", help="MCAP or CSV file for the estimated trajectory")
-    p.add_argument(
-        "--sensors", default="full", help="sensor subset: full, imu_tof, imu_vision, vision (comma list allowed)"
+    sub = p.add_subparsers(dest="fusion_command", metavar="ACTION", required=True)
+    run_cli.register(sub.add_parser("run", help="the tracking filter over a recording", description=run_cli.__doc__))
+    attitude_cli.register(
+        sub.add_parser(
+            "attitude",
+            help="orientation from a CSV of gyro and accelerometer samples",
+            description=attitude_cli.__doc__,
+        )
     )
-    p.add_argument("--calibration", help="calibration file (default: the recording's as-calibrated constants)")
-    p.add_argument("--params", help="YAML file of filter parameters")
-    p.set_defaults(func=not_yet("offline fusion", "the fusion issue"))
