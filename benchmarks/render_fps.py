@@ -10,7 +10,7 @@ import time
 import cv2
 import numpy as np
 
-from services.bench.render import RenderParams, get_scene, render_frame
+from services.bench.render.renderer import RenderParams, get_scene, render_frame
 from tiplog.camera_model import CameraModel
 
 NEUTRAL_FROM_VERTICAL_DEG = 28.6

@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from services.bench.motion import MotionConfig, neutral_posture, simulate
-from services.bench.robot import FR3_DQ_MAX_RADPS, FR3_Q_MAX_RAD, FR3_Q_MIN_RAD
+from services.bench.robot.fr3 import FR3_DQ_MAX_RADPS, FR3_Q_MAX_RAD, FR3_Q_MIN_RAD
+from services.bench.robot.motion import MotionConfig, neutral_posture, simulate
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -76,7 +76,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from services.bench.report import format_table, report
+    from services.bench.report.fidelity import format_table, report
 
     try:
         rep = report(args.recording)

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
-from services.bench.sensors import Stream
-from services.bench.vision_model import VisionFrames
+from services.bench.sensors.device import Stream
+from services.bench.sensors.vision_model import VisionFrames
 from tiplog import images
 from tiplog.geometry import rot_to_quat
 from tiplog.v1 import device_pb2, robot_pb2, vision_pb2

@@ -1,6 +1,6 @@
 """The scenario file: every number of the simulated bench, validated with a range.
 
-Defaults reproduce the paper's bench (docs: /work/shared/design/bench-facts.md); a YAML file
+Defaults reproduce the paper's bench (its Methods and Experiments); a YAML file
 or `--set section.field=value` overrides any field. Units are in the field names (_m, _mm,
 _deg, _ms, _hz, ...). Frames: base (z up), tool (origin at the tip, z along the shaft,
 distal), imu, camera (x right, y down, z forward).
@@ -18,7 +18,7 @@ from tiplog.camera_model import CameraModel
 from tiplog.config import ConfigError, format_validation_error, parse_override, set_path
 
 try:  # the robot helper's motion configuration (services/bench/motion.py)
-    from services.bench.motion import MotionConfig
+    from services.bench.robot.motion import MotionConfig
 except ImportError:  # pragma: no cover - until motion.py lands
 
     class MotionConfig(BaseModel):  # type: ignore[no-redef]
@@ -26,7 +26,7 @@ except ImportError:  # pragma: no cover - until motion.py lands
 
 
 try:  # the render helper's pixel-tier parameters (services/bench/render.py)
-    from services.bench.render import RenderParams
+    from services.bench.render.renderer import RenderParams
 except ImportError:  # pragma: no cover - without OpenCV or before render.py lands
 
     class RenderParams(BaseModel):  # type: ignore[no-redef]

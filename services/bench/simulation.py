@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from services.bench.calibration import as_calibrated, true_constants
 from services.bench.scenario import Scenario
-from services.bench.sensors import DeviceClock, Kinematics, Stream, _interp, _interp_R, arrival, simulate_sensors
-from services.bench.vision_model import VisionFrames, frame_times, simulate_vision
+from services.bench.sensors.calibration import as_calibrated, true_constants
+from services.bench.sensors.device import DeviceClock, Kinematics, Stream, _interp, _interp_R, arrival, simulate_sensors
+from services.bench.sensors.vision_model import VisionFrames, frame_times, simulate_vision
 
 TIERS = ("measurement", "pixel")
 
@@ -62,7 +62,7 @@ class SimulatedSession:
 
     def render_frame(self, k: int) -> np.ndarray:
         """Pixel tier: frame k as uint8 (H, W, 3) RGB."""
-        from services.bench import render
+        from services.bench.render import renderer as render
 
         if self._render_params is None:
             sc = self.scenario
@@ -94,7 +94,7 @@ def simulate_session(
     scenario: Scenario, seed: int = 0, tier: str = "measurement", duration_s: float | None = None
 ) -> SimulatedSession:
     """Robot, sensors and camera for `scenario` (seeded; `duration_s` cuts the protocol)."""
-    from services.bench import motion  # Pinocchio: imported only when simulating
+    from services.bench.robot import motion  # Pinocchio: imported only when simulating
 
     if tier not in TIERS:
         raise ValueError(f"tier must be one of {', '.join(TIERS)} (got {tier!r})")

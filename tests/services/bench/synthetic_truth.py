@@ -1,4 +1,4 @@
-"""Analytic ground-truth motions (the shape of services.bench.motion.GroundTruth) for testing
+"""Analytic ground-truth motions (the shape of services.bench.robot.motion.GroundTruth) for testing
 the sensor and vision models without the robot."""
 
 from __future__ import annotations

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import yaml
 
-from services.bench.calibration import BenchConstants
 from services.bench.scenario import load_scenario
+from services.bench.sensors.calibration import BenchConstants
 from services.bench.session import generate
 from tiplog.mcap_io import read_messages, read_metadata
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from services.bench.calibration import BenchConstants
+from services.bench.sensors.calibration import BenchConstants
 from tiplog.geometry import quat_to_rot, so3_exp, so3_log
 from tiplog.mcap_io import read_messages, read_metadata
 

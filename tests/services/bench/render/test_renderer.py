@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from services.bench.render import RenderParams, get_scene, render_frame
+from services.bench.render.renderer import RenderParams, get_scene, render_frame
 from tiplog.camera_model import CameraModel
 
 PINHOLE = CameraModel(1280, 720, 652.0, 651.0, 641.3, 358.7)
@@ -238,8 +238,8 @@ def test_every_occlusion_kind_occurs():
 @pytest.mark.parametrize("camera", [PINHOLE, D405], ids=["pinhole", "d405"])
 def test_truth_masks_equal_a_whole_frame_cast(camera):
     # the renderer casts only pixels near the instrument; casting every pixel must agree
-    from services.bench.render_geometry import InstrumentGeometry
-    from services.bench.render_instrument import instrument_masks
+    from services.bench.render.geometry import InstrumentGeometry
+    from services.bench.render.instrument import instrument_masks
 
     rng = np.random.default_rng(11)
     params = RenderParams(**CLEAN)

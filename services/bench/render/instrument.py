@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from scipy.special import ndtr
 
-from services.bench.render_geometry import (
+from services.bench.render.geometry import (
     PART_END_FACE,
     PART_JAW_TIP,
     PART_JAWS,
@@ -24,7 +24,7 @@ from services.bench.render_geometry import (
     cylinder_shading_hits,
     silhouette_lines,
 )
-from services.bench.render_scene import Scene
+from services.bench.render.scene import Scene
 
 Z_NEAR_M = 0.005
 BAND_MARGIN_PX = 2.0

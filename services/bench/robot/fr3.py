@@ -1,7 +1,7 @@
 """Franka Research 3 holding the instrument: a Pinocchio model built from the modified-DH table.
 
 No robot description package and no URDF: the seven revolute joints are added one by one from
-the maker's Craig (modified) DH parameters in `docs/bench-facts.md`. The instrument is fixed to
+the maker's Craig (modified) DH parameters (`FR3_DH` below). The instrument is fixed to
 the flange; the frame "tool" has its origin AT THE INSTRUMENT TIP and its z axis along the shaft,
 pointing distally (e_s = e_z, u = R_base_tool @ e_z). Lengths in metres, angles in radians.
 

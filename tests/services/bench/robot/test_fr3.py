@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.bench.robot import (
+from services.bench.robot.fr3 import (
     FR3_DQ_MAX_RADPS,
     FR3_Q_MAX_RAD,
     FR3_Q_MIN_RAD,

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from services.bench.report import format_table, report
+from services.bench.report.fidelity import format_table, report
 from services.bench.scenario import load_scenario
 from services.bench.session import generate
 from tiplog import cli

@@ -7,10 +7,10 @@ from math import erf
 import numpy as np
 import pytest
 
-from services.bench import sensors
-from services.bench.calibration import true_constants
 from services.bench.scenario import load_scenario
-from services.bench.vision_model import simulate_vision
+from services.bench.sensors import device as sensors
+from services.bench.sensors.calibration import true_constants
+from services.bench.sensors.vision_model import simulate_vision
 from tests.services.bench.synthetic_truth import pivot
 from tiplog import vision_geometry as vg
 

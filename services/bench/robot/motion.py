@@ -14,10 +14,10 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from services.bench import protocols
-from services.bench.protocols import FREE, HOLD, MOVE, POST, PRE  # noqa: F401  (re-exported)
-from services.bench.robot import FR3_Q_MAX_RAD, FR3_Q_MIN_RAD, Fr3Kinematics, InstrumentMount, rpy_to_matrix
-from services.bench.servo import RcmServo, ServoParams, project_onto_port
+from services.bench.robot import protocols
+from services.bench.robot.fr3 import FR3_Q_MAX_RAD, FR3_Q_MIN_RAD, Fr3Kinematics, InstrumentMount, rpy_to_matrix
+from services.bench.robot.protocols import FREE, HOLD, MOVE, POST, PRE  # noqa: F401  (re-exported)
+from services.bench.robot.servo import RcmServo, ServoParams, project_onto_port
 
 Vec3 = tuple[float, float, float]
 Vec7 = tuple[float, float, float, float, float, float, float]

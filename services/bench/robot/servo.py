@@ -25,7 +25,7 @@ from typing import Literal
 
 import numpy as np
 
-from services.bench.robot import Fr3Kinematics
+from services.bench.robot.fr3 import Fr3Kinematics
 
 
 @dataclass(frozen=True)

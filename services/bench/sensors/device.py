@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 from scipy.signal import savgol_filter
 
-from services.bench.calibration import BenchConstants
-from services.bench.pose_field import PoseField, ou_process
 from services.bench.scenario import ClockConfig, Scenario
+from services.bench.sensors.calibration import BenchConstants
+from services.bench.sensors.pose_field import PoseField, ou_process
 from tiplog.geometry import so3_exp, so3_log
 from tiplog.v1.device_pb2 import TofStatus
 

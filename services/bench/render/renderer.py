@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from services.bench.render_geometry import InstrumentGeometry, silhouette_lines
-from services.bench.render_instrument import (
+from services.bench.render.geometry import InstrumentGeometry, silhouette_lines
+from services.bench.render.instrument import (
     Material,
     defocus_sigma_px,
     draw_blob,
@@ -36,7 +36,7 @@ from services.bench.render_instrument import (
     instrument_masks,
     random_second_instrument,
 )
-from services.bench.render_scene import Scene
+from services.bench.render.scene import Scene
 from tiplog.camera_model import CameraModel
 
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.bench.motion import MotionConfig, neutral_posture, simulate
-from services.bench.robot import FR3_DQ_MAX_RADPS, FR3_Q_MAX_RAD, FR3_Q_MIN_RAD, Fr3Kinematics
-from services.bench.servo import RcmServo, ServoParams, project_onto_port, roll_about_shaft
+from services.bench.robot.fr3 import FR3_DQ_MAX_RADPS, FR3_Q_MAX_RAD, FR3_Q_MIN_RAD, Fr3Kinematics
+from services.bench.robot.motion import MotionConfig, neutral_posture, simulate
+from services.bench.robot.servo import RcmServo, ServoParams, project_onto_port, roll_about_shaft
 from tiplog.geometry import so3_exp
 
 RCM_TOL_M = 0.05e-3

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from services.bench.report_data import Session, cluster_poses, in_window, load, pose_key, rest_windows, truth_p, truth_R
+from services.bench.report.data import Session, cluster_poses, in_window, load, pose_key, rest_windows, truth_p, truth_R
 from tiplog import vision_geometry as vg
 from tiplog.geometry import so3_exp, so3_log
 

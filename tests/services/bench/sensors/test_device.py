@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.bench import sensors
-from services.bench.calibration import true_constants
-from services.bench.pose_field import PoseField, ou_process
 from services.bench.scenario import load_scenario
+from services.bench.sensors import device as sensors
+from services.bench.sensors.calibration import true_constants
+from services.bench.sensors.pose_field import PoseField, ou_process
 from tests.services.bench.synthetic_truth import pivot
 from tiplog.geometry import so3_exp
 from tiplog.v1.device_pb2 import TofStatus

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from services.bench.trajectory import (  # noqa: F401  (re-exported for callers)
+from services.bench.robot.trajectory import (  # noqa: F401  (re-exported for callers)
     FREE,
     HOLD,
     MOVE,

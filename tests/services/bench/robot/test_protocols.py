@@ -7,8 +7,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from services.bench import protocols as P
-from services.bench.motion import GroundTruth, MotionConfig, build_command, simulate
+from services.bench.robot import protocols as P
+from services.bench.robot.motion import GroundTruth, MotionConfig, build_command, simulate
 from tiplog.geometry import rotation_angle
 
 CFG = MotionConfig()

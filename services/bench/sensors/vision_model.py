@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.bench.calibration import BenchConstants
-from services.bench.pose_field import PoseField
 from services.bench.scenario import Scenario
-from services.bench.sensors import Kinematics, _interp, _interp_R, arrival, pose_field_at
+from services.bench.sensors.calibration import BenchConstants
+from services.bench.sensors.device import Kinematics, _interp, _interp_R, arrival, pose_field_at
+from services.bench.sensors.pose_field import PoseField
 from tiplog import vision_geometry as vg
 
 
