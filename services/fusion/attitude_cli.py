@@ -1,14 +1,112 @@
 """`tiplog fusion attitude IN.csv OUT.csv`: the IMU's orientation alone (sensor to an earth
-frame with z up, heading arbitrary)."""
+frame with z up, heading arbitrary), from gyroscope and accelerometer samples.
+
+IN.csv has a header row naming at least the columns t_s, gyr_x, gyr_y, gyr_z [rad/s],
+acc_x, acc_y, acc_z [m/s^2], in any order (other columns are ignored; lines starting with '#'
+are comments). Time must not decrease; any rate, jitter and dropped rows are fine. An empty or
+NaN gyroscope or accelerometer value marks that sensor missing in its row. OUT.csv gets
+t_s, qw, qx, qy, qz for every input row.
+"""
 
 from __future__ import annotations
 
 import argparse
+import csv
+import math
+from pathlib import Path
 
-from tiplog.pending import not_yet
+import numpy as np
+
+from tiplog.userio import UserError, atomic_output, input_file
+
+COLUMNS = ("t_s", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")
+_MISSING = {"", "nan", "NaN", "NAN", "-nan", "na", "NA", "null"}
 
 
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="CSV: t_s, gyr_x, gyr_y, gyr_z [rad/s], acc_x, acc_y, acc_z [m/s^2]")
     p.add_argument("output", help="CSV to write: t_s, qw, qx, qy, qz")
-    p.set_defaults(func=not_yet("attitude estimation", "the fusion issue"))
+    p.add_argument("--force", action="store_true", help="overwrite OUTPUT if it exists")
+    p.add_argument("--tau-acc", type=float, default=None, metavar="S", help="accelerometer time constant (default 3 s)")
+    p.add_argument("--no-bias", action="store_true", help="do not estimate the gyroscope bias")
+    p.set_defaults(func=run)
+
+
+def read_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t_s (N,), gyr (N, 3) rad/s, acc (N, 3) m/s^2; NaN where missing), or UserError naming
+    the line and column that is wrong."""
+    p = input_file(path, "CSV file")
+    try:
+        with open(p, newline="", encoding="utf-8-sig") as f:
+            lines = [(i + 1, ln) for i, ln in enumerate(f) if ln.strip() and not ln.lstrip().startswith("#")]
+    except UnicodeDecodeError:
+        raise UserError(f"{p}: not a text CSV file") from None
+    except OSError as e:
+        raise UserError(f"{p}: cannot read ({e.strerror or e})") from None
+    if not lines:
+        raise UserError(f"{p}: no header row (expected columns {', '.join(COLUMNS)})")
+    rows = list(csv.reader(ln for _, ln in lines))
+    header = [h.strip().lower() for h in rows[0]]
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise UserError(
+            f"{p}: line {lines[0][0]}: header lacks column(s) {', '.join(missing)} "
+            f"(expected a header row naming {', '.join(COLUMNS)})"
+        )
+    idx = [header.index(c) for c in COLUMNS]
+    if len(rows) < 3:
+        raise UserError(f"{p}: needs at least two data rows (found {len(rows) - 1})")
+    data = np.empty((len(rows) - 1, len(COLUMNS)))
+    for r, (row, (line, _)) in enumerate(zip(rows[1:], lines[1:], strict=True)):
+        if len(row) < len(header):
+            raise UserError(f"{p}: line {line}: {len(row)} fields, the header has {len(header)}")
+        for c, j in enumerate(idx):
+            cell = row[j].strip()
+            if cell in _MISSING:
+                data[r, c] = math.nan
+                continue
+            try:
+                data[r, c] = float(cell)
+            except ValueError:
+                raise UserError(f"{p}: line {line}, column {COLUMNS[c]}: {cell[:40]!r} is not a number") from None
+    t = data[:, 0]
+    bad = ~np.isfinite(t)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise UserError(f"{p}: line {lines[k + 1][0]}, column t_s: time missing or not finite")
+    back = np.diff(t) < 0
+    if back.any():
+        k = int(np.argmax(back)) + 1
+        raise UserError(
+            f"{p}: line {lines[k + 1][0]}, column t_s: time goes backwards ({t[k]!r} s after {t[k - 1]!r} s)"
+        )
+    if not np.isfinite(data[:, 4:7]).all(axis=1).any():
+        raise UserError(f"{p}: no row has a complete accelerometer sample (acc_x, acc_y, acc_z)")
+    if not np.isfinite(data[:, 1:4]).all(axis=1).any():
+        raise UserError(f"{p}: no row has a complete gyroscope sample (gyr_x, gyr_y, gyr_z)")
+    return t, data[:, 1:4], data[:, 4:7]
+
+
+def write_csv(path: Path, t_s: np.ndarray, q_wxyz: np.ndarray) -> None:
+    """t_s, qw, qx, qy, qz, one row per sample."""
+    with open(path, "w", newline="") as f:
+        f.write("t_s,qw,qx,qy,qz\n")
+        for t, q in zip(t_s, q_wxyz, strict=True):
+            f.write(f"{float(t)!r},{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f}\n")
+
+
+def run(args: argparse.Namespace) -> int:
+    from services.fusion.attitude import Params, estimate
+
+    t_s, gyr, acc = read_csv(args.input)
+    kw = {}
+    if args.tau_acc is not None:
+        kw["tau_acc_s"] = args.tau_acc
+    try:
+        params = Params(estimate_bias=not args.no_bias, **kw)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    q = estimate(t_s, gyr, acc, params)
+    with atomic_output(args.output, args.force) as tmp:
+        write_csv(tmp, t_s, q)
+    return 0

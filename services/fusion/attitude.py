@@ -1,0 +1,400 @@
+"""Six-axis attitude filter: gyroscope and accelerometer to the sensor's orientation in an earth
+frame with z up (heading arbitrary, no magnetometer). Pure numpy, no I/O.
+
+The structure follows VQF's 6-D part (Laidig and Seel, "VQF: Highly accurate IMU orientation
+estimation with bias estimation and magnetic disturbance rejection", Information Fusion 2023):
+
+- the gyroscope is integrated strapdown into a quasi-inertial frame (`q_gyr`);
+- the accelerometer is rotated into that frame and low-passed there (second-order Butterworth,
+  time constant `tau_acc_s`): motion accelerations average out in an inertial frame while
+  gravity does not, so the filtered vector is gravity as the drifting gyro frame sees it;
+- an inclination correction `q_acc` (about horizontal axes only) turns it onto +z;
+- the gyroscope bias is a three-state Kalman filter, fed at rest by the low-passed gyroscope
+  and in motion by the rate of the inclination correction.
+
+Unlike VQF, every step uses its own time step from the sample stamps (arbitrary and jittering
+rates, dropped rows), the gyroscope is integrated with the trapezoid rule, a gap longer than
+`max_gap_s` restarts the inclination from the next accelerometer sample, and a missing (NaN)
+gyroscope or accelerometer value skips that sensor for the row. The time loop is one scalar
+kernel, compiled with numba when it is installed (`pip install tiplog[fast]`) and plain
+Python otherwise; the online `update` and the batch `update_batch` share it.
+
+Quaternions here are Hamilton (w, x, y, z), sensor to earth: v_earth = q * v_sensor * q^-1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+try:  # optional (extra `fast`): compiles the time loop, about 100x faster
+    from numba import njit
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - exercised where numba is absent
+    HAVE_NUMBA = False
+
+
+def _jit(f):
+    return njit(cache=True, nogil=True)(f) if HAVE_NUMBA else f
+
+
+_DEG = math.pi / 180.0
+_SQRT2 = math.sqrt(2.0)
+
+# Layout of the flat state vector the kernel works on.
+_QG, _QA, _LPA, _BIAS, _P = 0, 4, 8, 14, 17  # q_gyr(4) q_acc(4) acc lp(6) bias(3) P(9)
+_LPRG, _GLP, _LPRA, _LPR, _LPB = 26, 32, 35, 41, 59  # rest gyr lp(6) gyr lp out(3) rest acc lp(6) R lp(18) Rb lp(4)
+_REST_T, _REST, _T, _GPREV, _FLAG, _ACC_INIT = 63, 64, 65, 66, 69, 70
+_N_STATE = 71
+
+
+@dataclass(frozen=True)
+class Params:
+    """Filter parameters; angles in degrees, rates in deg/s, times in seconds."""
+
+    tau_acc_s: float = 3.0  # accelerometer low-pass time constant in the quasi-inertial frame
+    bias_sigma_init_dps: float = 0.5  # prior of the gyroscope bias
+    bias_forgetting_time_s: float = 100.0  # bias variance grows to (0.1 deg/s)^2 in this time
+    bias_clip_dps: float = 2.0  # bias estimate and its per-step disagreement are clipped to this
+    bias_sigma_motion_dps: float = 0.1  # steady-state bias sigma with motion updates alone
+    bias_vertical_forgetting: float = 1e-4  # weight of the vertical pseudo-update in motion
+    bias_sigma_rest_dps: float = 0.03  # steady-state bias sigma with rest updates
+    rest_th_gyr_dps: float = 2.0  # rest: |gyr - lp(gyr)| below this ...
+    rest_th_acc_mps2: float = 0.5  # ... and |acc - lp(acc)| below this ...
+    rest_min_s: float = 1.5  # ... for this long
+    max_gap_s: float = 0.5  # a longer gap between rows restarts the inclination
+    rest_tau_s: float = 0.5  # low-pass time constant of rest detection
+    estimate_bias: bool = True
+
+    def __post_init__(self) -> None:
+        for name, v in asdict(self).items():
+            if name == "estimate_bias":
+                continue
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"attitude parameter {name}: must be a finite number > 0 (got {v!r})")
+
+    def vector(self) -> np.ndarray:
+        """The kernel's parameter vector (radians and SI units)."""
+        return np.array(
+            [
+                self.tau_acc_s,
+                self.bias_sigma_init_dps,
+                self.bias_forgetting_time_s,
+                self.bias_clip_dps * _DEG,
+                self.bias_sigma_motion_dps,
+                self.bias_vertical_forgetting,
+                self.bias_sigma_rest_dps,
+                self.rest_th_gyr_dps * _DEG,
+                self.rest_th_acc_mps2,
+                self.rest_min_s,
+                self.max_gap_s if self.estimate_bias else -self.max_gap_s,
+                self.rest_tau_s,
+            ]
+        )
+
+
+@_jit
+def _lp_coeffs(tau: float, dt: float) -> tuple[float, float, float]:
+    """Second-order Butterworth low-pass (cutoff sqrt(2)/(2 pi tau)) for step dt: b0, a1, a2."""
+    fc = _SQRT2 / (2.0 * math.pi * tau)
+    c = math.tan(min(math.pi * fc * dt, 1.4))
+    d = c * c + _SQRT2 * c + 1.0
+    return c * c / d, 2.0 * (c * c - 1.0) / d, (1.0 - _SQRT2 * c + c * c) / d
+
+
+@_jit
+def _lp(x: float, b0: float, a1: float, a2: float, s: np.ndarray, k: int) -> float:
+    """One step of the filter (transposed direct form II) on channel state s[k], s[k + 1]."""
+    y = b0 * x + s[k]
+    s[k] = 2.0 * b0 * x - a1 * y + s[k + 1]
+    s[k + 1] = b0 * x - a2 * y
+    return y
+
+
+@_jit
+def _lp_init(x: float, b0: float, a2: float, s: np.ndarray, k: int) -> None:
+    """Set channel state s[k], s[k + 1] to the steady state of a constant input x."""
+    s[k] = x - b0 * x
+    s[k + 1] = b0 * x - a2 * x
+
+
+@_jit
+def _qmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    w = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
+    x = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
+    y = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
+    z = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    out[0], out[1], out[2], out[3] = w / n, x / n, y / n, z / n
+
+
+@_jit
+def _qmat(q: np.ndarray, R: np.ndarray) -> None:
+    """Rotation matrix (row-major, 9) of the unit quaternion q (w, x, y, z)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    R[0], R[1], R[2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    R[3], R[4], R[5] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    R[6], R[7], R[8] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+
+
+@_jit
+def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st: np.ndarray, q_out: np.ndarray) -> None:
+    """Advance state `st` over rows (t_s (N,), gyr (N, 3) rad/s, acc (N, 3) m/s^2, NaN = missing);
+    writes the sensor-to-earth quaternion of every row into q_out (N, 4) and the bias into
+    st. Rows whose time is not after the previous row's change nothing."""
+    tau_acc, p0_sig, forget_t, clip, mot_sig, vert_f, rest_sig = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6]
+    th_g, th_a, rest_min, max_gap = prm[7], prm[8], prm[9], abs(prm[10])
+    bias_on = prm[10] > 0
+    tau_rest = prm[11]
+    p0 = p0_sig * p0_sig
+    v_rate = 0.01 / forget_t  # (0.1 deg/s)^2 per forgetting time, per second
+    qtmp = np.empty(4)
+    corr = np.empty(4)
+    R = np.empty(9)
+    H = np.zeros((3, 3))
+    e = np.zeros(3)
+    for i in range(t_s.shape[0]):
+        t = t_s[i]
+        g_ok = math.isfinite(gyr[i, 0]) and math.isfinite(gyr[i, 1]) and math.isfinite(gyr[i, 2])
+        a_ok = math.isfinite(acc[i, 0]) and math.isfinite(acc[i, 1]) and math.isfinite(acc[i, 2])
+        a_ok = a_ok and (acc[i, 0] != 0.0 or acc[i, 1] != 0.0 or acc[i, 2] != 0.0)
+        if st[_FLAG] == 0.0:
+            st[_FLAG] = 1.0
+            st[_T] = t
+            dt = 0.0
+        else:
+            dt = t - st[_T]
+            if not dt > 0.0:  # a repeated stamp: nothing happened since the previous row
+                _qmul(st[_QA : _QA + 4], st[_QG : _QG + 4], q_out[i])
+                continue
+            st[_T] = t
+            if dt > max_gap:  # orientation over the gap is unknown: restart the inclination
+                st[_ACC_INIT] = 0.0
+                st[_REST_T] = 0.0
+                st[_REST] = 0.0
+            elif g_ok or st[_GPREV] == st[_GPREV]:
+                # trapezoid between the previous and this gyro sample (hold one when missing)
+                for k in range(3):
+                    gp = st[_GPREV + k] if st[_GPREV] == st[_GPREV] else gyr[i, k]
+                    gc = gyr[i, k] if g_ok else gp
+                    e[k] = (0.5 * (gp + gc) - st[_BIAS + k]) * dt
+                ang = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+                if ang > 1e-15:
+                    s = math.sin(0.5 * ang) / ang
+                    qtmp[0], qtmp[1], qtmp[2], qtmp[3] = math.cos(0.5 * ang), s * e[0], s * e[1], s * e[2]
+                    _qmul(st[_QG : _QG + 4], qtmp, st[_QG : _QG + 4])
+        if g_ok:
+            for k in range(3):
+                st[_GPREV + k] = gyr[i, k]
+            # rest detection, gyroscope part
+            if dt > 0.0:
+                rb0, ra1, ra2 = _lp_coeffs(tau_rest, dt)
+                dev = 0.0
+                big = False
+                for k in range(3):
+                    y = _lp(gyr[i, k], rb0, ra1, ra2, st, _LPRG + 2 * k)
+                    st[_GLP + k] = y
+                    dev += (gyr[i, k] - y) ** 2
+                    big = big or abs(y) > clip
+                if dev >= th_g * th_g or big:
+                    st[_REST_T] = 0.0
+                    st[_REST] = 0.0
+            else:
+                rb0, ra1, ra2 = _lp_coeffs(tau_rest, 0.005)
+                for k in range(3):
+                    _lp_init(gyr[i, k], rb0, ra2, st, _LPRG + 2 * k)
+                    st[_GLP + k] = gyr[i, k]
+        if a_ok:
+            _acc_step(acc[i], dt, st, tau_acc, tau_rest, th_a, rest_min, p0, v_rate, clip, mot_sig, vert_f, rest_sig,
+                      bias_on, qtmp, corr, R, H, e)  # fmt: skip
+        _qmul(st[_QA : _QA + 4], st[_QG : _QG + 4], q_out[i])
+
+
+@_jit
+def _acc_step(
+    a,
+    dt,
+    st,
+    tau_acc,
+    tau_rest,
+    th_a,
+    rest_min,
+    p0,
+    v_rate,
+    clip,
+    mot_sig,
+    vert_f,
+    rest_sig,
+    bias_on,
+    qtmp,
+    corr,
+    R,
+    H,
+    e,
+) -> None:
+    """Accelerometer row: rest detection, low-pass in the gyro frame, inclination correction,
+    bias update (see the module docstring)."""
+    init = st[_ACC_INIT] == 0.0 or dt <= 0.0
+    step = dt if dt > 0.0 else 0.005
+    b0, a1, a2 = _lp_coeffs(tau_acc, step)
+    rb0, ra1, ra2 = _lp_coeffs(tau_rest, step)
+    # rest detection, accelerometer part
+    if init:
+        for k in range(3):
+            _lp_init(a[k], rb0, ra2, st, _LPRA + 2 * k)
+    else:
+        dev = 0.0
+        for k in range(3):
+            dev += (a[k] - _lp(a[k], rb0, ra1, ra2, st, _LPRA + 2 * k)) ** 2
+        if dev >= th_a * th_a:
+            st[_REST_T] = 0.0
+            st[_REST] = 0.0
+        else:
+            st[_REST_T] += dt
+            if st[_REST_T] >= rest_min:
+                st[_REST] = 1.0
+    # accelerometer in the quasi-inertial gyro frame, low-passed there
+    _qmat(st[_QG : _QG + 4], R)
+    for k in range(3):
+        x = R[3 * k] * a[0] + R[3 * k + 1] * a[1] + R[3 * k + 2] * a[2]
+        if init:
+            _lp_init(x, b0, a2, st, _LPA + 2 * k)
+            e[k] = x
+        else:
+            e[k] = _lp(x, b0, a1, a2, st, _LPA + 2 * k)
+    # into the earth frame, normalised; correction about horizontal axes onto +z
+    _qmat(st[_QA : _QA + 4], R)
+    ex = R[0] * e[0] + R[1] * e[1] + R[2] * e[2]
+    ey = R[3] * e[0] + R[4] * e[1] + R[5] * e[2]
+    ez = R[6] * e[0] + R[7] * e[1] + R[8] * e[2]
+    n = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if n < 1e-9:
+        return
+    ex, ey, ez = ex / n, ey / n, ez / n
+    qw = math.sqrt(max(0.0, (ez + 1.0) * 0.5))
+    if qw > 1e-6:
+        corr[0], corr[1], corr[2], corr[3] = qw, 0.5 * ey / qw, -0.5 * ex / qw, 0.0
+    else:
+        corr[0], corr[1], corr[2], corr[3] = 0.0, 1.0, 0.0, 0.0
+    _qmul(corr, st[_QA : _QA + 4], st[_QA : _QA + 4])
+    if not bias_on:
+        st[_ACC_INIT] = 1.0
+        return
+    # bias: R of the 6-D orientation and R @ bias, both low-passed like the accelerometer
+    _qmul(st[_QA : _QA + 4], st[_QG : _QG + 4], qtmp)
+    _qmat(qtmp, R)
+    bx, by, bz = st[_BIAS], st[_BIAS + 1], st[_BIAS + 2]
+    rb0_ = R[0] * bx + R[1] * by + R[2] * bz
+    rb1_ = R[3] * bx + R[4] * by + R[5] * bz
+    for k in range(9):
+        if init:
+            _lp_init(R[k], b0, a2, st, _LPR + 2 * k)
+        else:
+            R[k] = _lp(R[k], b0, a1, a2, st, _LPR + 2 * k)
+    if init:
+        _lp_init(rb0_, b0, a2, st, _LPB)
+        _lp_init(rb1_, b0, a2, st, _LPB + 2)
+        st[_ACC_INIT] = 1.0
+        return
+    rb0_ = _lp(rb0_, b0, a1, a2, st, _LPB)
+    rb1_ = _lp(rb1_, b0, a1, a2, st, _LPB + 2)
+    # variances in (deg/s)^2; W chosen so the steady-state sigma is the parameter's
+    v = v_rate * dt
+    for k in range(3):
+        if st[_P + 4 * k] < p0:
+            st[_P + 4 * k] += v
+    if st[_REST] > 0.0:
+        for k in range(3):
+            e[k] = st[_GLP + k] - st[_BIAS + k]
+            for j in range(3):
+                H[k, j] = 1.0 if k == j else 0.0
+        pr = rest_sig * rest_sig
+        w0 = w1 = w2 = pr * pr / v + pr
+    else:
+        e[0] = -ey / dt + rb0_ - (R[0] * bx + R[1] * by + R[2] * bz)
+        e[1] = ex / dt + rb1_ - (R[3] * bx + R[4] * by + R[5] * bz)
+        e[2] = -(R[6] * bx + R[7] * by + R[8] * bz)
+        for k in range(3):
+            for j in range(3):
+                H[k, j] = R[3 * k + j]
+        pm = mot_sig * mot_sig
+        w0 = w1 = pm * pm / v + pm
+        w2 = w0 / max(vert_f, 1e-10)
+    e_deg = np.empty(3)
+    for k in range(3):
+        e_deg[k] = min(max(e[k], -clip), clip) / _DEG
+    P = st[_P : _P + 9].reshape(3, 3)
+    S = H @ P @ H.T
+    S[0, 0] += w0
+    S[1, 1] += w1
+    S[2, 2] += w2
+    K = P @ H.T @ np.linalg.inv(S)
+    db = K @ e_deg
+    P2 = P - K @ H @ P
+    for k in range(9):
+        st[_P + k] = P2.ravel()[k]
+    for k in range(3):
+        st[_BIAS + k] = min(max(st[_BIAS + k] + db[k] * _DEG, -clip), clip)
+
+
+class AttitudeFilter:
+    """Online and batch use of the kernel; the state carries over between calls, so feeding a
+    recording in pieces gives the same result as feeding it at once."""
+
+    def __init__(self, params: Params | None = None):
+        self.params = params or Params()
+        self._prm = self.params.vector()
+        self.reset()
+
+    def reset(self) -> None:
+        st = np.zeros(_N_STATE)
+        st[_QG] = st[_QA] = 1.0
+        st[_P : _P + 9] = (np.eye(3) * self.params.bias_sigma_init_dps**2).ravel()
+        st[_GPREV : _GPREV + 3] = np.nan
+        self._st = st
+        self._q = np.array([1.0, 0.0, 0.0, 0.0])
+
+    @property
+    def quat(self) -> np.ndarray:
+        """Latest sensor-to-earth quaternion (w, x, y, z)."""
+        return self._q.copy()
+
+    @property
+    def bias_radps(self) -> np.ndarray:
+        """Current gyroscope bias estimate, sensor axes, rad/s."""
+        return self._st[_BIAS : _BIAS + 3].copy()
+
+    @property
+    def rest(self) -> bool:
+        """Whether rest is detected now."""
+        return bool(self._st[_REST] > 0.0)
+
+    def update(self, t_s: float, gyr_radps: np.ndarray, acc_mps2: np.ndarray) -> np.ndarray:
+        """One row: time [s], gyro (3,) [rad/s], accelerometer (3,) [m/s^2] (NaN: missing).
+        Returns the sensor-to-earth quaternion (w, x, y, z)."""
+        return self.update_batch(np.array([t_s], float), np.reshape(gyr_radps, (1, 3)), np.reshape(acc_mps2, (1, 3)))[0]
+
+    def update_batch(self, t_s: np.ndarray, gyr_radps: np.ndarray, acc_mps2: np.ndarray) -> np.ndarray:
+        """Rows t_s (N,) [s, increasing], gyr (N, 3) [rad/s], acc (N, 3) [m/s^2] -> (N, 4)
+        sensor-to-earth quaternions (w, x, y, z). NaN marks a missing value."""
+        t = np.ascontiguousarray(t_s, dtype=float)
+        g = np.ascontiguousarray(gyr_radps, dtype=float)
+        a = np.ascontiguousarray(acc_mps2, dtype=float)
+        n = t.shape[0]
+        if t.ndim != 1 or g.shape != (n, 3) or a.shape != (n, 3):
+            raise ValueError(
+                f"attitude input: expected t_s (N,), gyr (N, 3), acc (N, 3); got {t.shape}, {g.shape}, {a.shape}"
+            )
+        out = np.empty((n, 4))
+        _run(t, g, a, self._prm, self._st, out)
+        if n:
+            self._q = out[-1].copy()
+        return out
+
+
+def estimate(t_s: np.ndarray, gyr_radps: np.ndarray, acc_mps2: np.ndarray, params: Params | None = None) -> np.ndarray:
+    """Whole recording at once: (N,) s, (N, 3) rad/s, (N, 3) m/s^2 -> (N, 4) quaternions (w, x, y, z)."""
+    return AttitudeFilter(params).update_batch(t_s, gyr_radps, acc_mps2)
