@@ -5,8 +5,10 @@ ground truth on the bus."""
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Literal
 
 from pydantic import Field
@@ -30,6 +32,32 @@ class BenchConfig(ServiceConfig):
     camera_tier: Literal["pixel", "measurement", "none"] = "pixel"
     robot_rate_hz: float = Field(200.0, gt=0.0, le=1000.0)
     tf_rate_hz: float = Field(30.0, gt=0.0, le=200.0)
+    # Where the as-calibrated constants are written at start-up (tiplog.calibration format, the
+    # same record as a session's `calibration_as_calibrated`); "" = not written.
+    calibration_file: str = ""
+
+
+def write_calibration(cfg: BenchConfig) -> Path | None:
+    """Write the as-calibrated constants of (scenario, seed) to `cfg.calibration_file`, under a
+    temporary name renamed when complete (a reader never sees half a file); None when unset."""
+    if not cfg.calibration_file:
+        return None
+    from services.bench.scenario import load_scenario
+    from services.bench.simulation import as_calibrated_constants
+    from tiplog.calibration import Calibration
+
+    scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
+    calib = Calibration.from_dict(as_calibrated_constants(scenario, cfg.seed).to_dict(), where="bench")
+    final = Path(cfg.calibration_file)
+    if not final.parent.is_dir():
+        raise ConfigError(f"config error: calibration_file: folder {final.parent} does not exist")
+    tmp = final.with_name(f".{final.name}.{os.getpid()}.partial")
+    try:
+        calib.save_yaml(tmp, extra={"source": f"bench scenario {scenario.name}, seed {cfg.seed}, as calibrated"})
+        os.replace(tmp, final)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return final
 
 
 def _prepare(cfg: BenchConfig):
@@ -50,6 +78,9 @@ def body(ctx: ServiceContext[BenchConfig]) -> None:
 
     def work() -> None:
         try:
+            path = write_calibration(cfg)
+            if path is not None:
+                ctx.log.info("as-calibrated constants written to %s", path)
             result.append(_prepare(cfg))
         except Exception as e:  # reported on the main thread
             result.append(e)

@@ -90,6 +90,13 @@ def commanded_through_hand_eye(scenario: Scenario, truth: Any, calib: Any) -> An
     return mc.model_copy(update={"command_camera_error_deg": tuple(float(v) for v in rpy)})
 
 
+def as_calibrated_constants(scenario: Scenario, seed: int = 0) -> Any:
+    """The as-calibrated constants `simulate_session(scenario, seed)` will carry, without
+    simulating (the live bench writes them to its calibration file at start-up)."""
+    s_cal = np.random.SeedSequence(seed).spawn(4)[1]
+    return as_calibrated(true_constants(scenario), scenario, np.random.default_rng(s_cal))
+
+
 def simulate_session(
     scenario: Scenario, seed: int = 0, tier: str = "measurement", duration_s: float | None = None
 ) -> SimulatedSession:

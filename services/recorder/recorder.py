@@ -421,7 +421,7 @@ class Recorder:
                     "application/yaml" if p.suffix in (".yaml", ".yml") else "application/octet-stream",
                     now_ns(),
                 )
-                f.add_metadata("calibration", {"file": str(p), "size": len(data)})
+                f.add_metadata("calibration", _calibration_record(p, data))
             except OSError as e:
                 log.warning("calibration file %s unreadable: %s", p, e)
                 f.add_metadata("calibration", {"file": str(p), "error": str(e)})
@@ -529,3 +529,24 @@ class Recorder:
                 self._on_status(self.status())
             except Exception:
                 log.exception("status callback raised")
+
+
+def _calibration_record(path: Path, data: bytes) -> dict[str, str | int]:
+    """The `calibration` metadata record: the file's name and size, and for a tiplog calibration
+    file its constants as JSON (what `Calibration.from_mcap_metadata` reads offline)."""
+    import json
+
+    import yaml
+
+    from tiplog.calibration import Calibration, CalibrationError
+
+    rec: dict[str, str | int] = {"file": str(path), "size": len(data)}
+    try:
+        doc = yaml.safe_load(data)
+        if isinstance(doc, dict) and "calibration" in doc:
+            rec["json"] = json.dumps(Calibration.from_dict(doc["calibration"], where=str(path)).to_dict())
+        else:
+            rec["note"] = "not a tiplog calibration file: attached as is"
+    except (yaml.YAMLError, CalibrationError) as e:
+        rec["note"] = f"not a usable tiplog calibration file ({str(e).splitlines()[0]}): attached as is"
+    return rec

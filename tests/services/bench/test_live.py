@@ -13,6 +13,7 @@ import pytest
 
 from tests.conftest import ROOT
 from tiplog.bus import Bus
+from tiplog.calibration import Calibration
 
 pytestmark = pytest.mark.slow
 
@@ -58,6 +59,7 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
             "duration_s=8",
             f"camera_tier={tier}",
             f"device_link={link}",
+            f"calibration_file={tmp_path / 'calibration.yaml'}",
         )
         gateway = _spawn("services.sensor_gateway", ep, prefix, f"port={link}")
         try:
@@ -73,6 +75,8 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
         with lock:
             gyro, accel, robot = list(got["device/gyro"]), list(got["device/accel"]), list(got["bench/robot"])
             frames = list(got["vision/observation"] if tier == "measurement" else got["camera/image"])
+    # the as-calibrated constants were written for fusion before the first sample went out
+    assert Calibration.load_yaml(tmp_path / "calibration.yaml").shaft_radius_m > 0
     # every gyro sample the device sent came through once, in order
     seqs = np.array([m.header.seq for m in gyro])
     assert np.all(np.diff(seqs) == 1)
