@@ -10,16 +10,25 @@ import random
 import threading
 import time
 from collections.abc import Iterator
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from tiplog.devproto.packets import HelloPacket, Packet, PacketType, TofPacket, Vec3Packet
-
-if TYPE_CHECKING:
-    from tiplog.devproto.emulator import DeviceEmulator
 
 log = logging.getLogger(__name__)
 
 G_MPS2 = 9.80665
+
+
+class PacketSink(Protocol):
+    """What `run_synthetic` drives: a `tiplog.devproto.emulator.DeviceEmulator` (or a fake)."""
+
+    rates_hz: dict[str, float]
+    firmware: str
+    device_id: str
+
+    def send(self, pkt: Packet) -> None: ...
+    def plug(self) -> None: ...
+    def unplug(self) -> object: ...
 
 
 def synthetic_packets(
@@ -60,7 +69,7 @@ def synthetic_packets(
 
 
 def run_synthetic(
-    emu: DeviceEmulator,
+    emu: PacketSink,
     *,
     speed: float = 1.0,
     duration_s: float | None = None,
