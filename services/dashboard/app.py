@@ -1,19 +1,114 @@
-"""`python -m services.dashboard`: joins the bus and declares its liveliness token; its own work
-lands with its issue."""
+"""`python -m services.dashboard`: the live page at http://127.0.0.1:8000 (FastAPI + uvicorn).
+
+Subscribes to fusion/state, bench/robot, vision/*, recorder/status, fusion/diagnostics,
+device/status and the liveliness tokens, and pushes them to each browser over a websocket.
+Binds to loopback by default; bound to any other address it refuses to start without viewer
+and operator tokens (environment or token file, see `services.dashboard.auth`). With
+`foxglove_bridge: true` it also serves the bus's topics to the Foxglove app.
+"""
 
 from __future__ import annotations
 
+import logging
+import threading
 from collections.abc import Sequence
+from dataclasses import dataclass
 
-from tiplog.config import ServiceConfig
-from tiplog.service import idle_until_stopped, run_service
+import uvicorn
+
+from services.dashboard.auth import Tokens, check_binding, load_tokens
+from services.dashboard.config import DashboardConfig
+from services.dashboard.feed import BusFeed
+from services.dashboard.recorder_api import RecorderClient
+from services.dashboard.server import create_app
+from tiplog.bus import Bus
+from tiplog.calibration import Calibration, CalibrationError
+from tiplog.service import ServiceContext, run_service
+from tiplog.userio import UserError, input_file
 
 NAME = "dashboard"
+log = logging.getLogger("tiplog.dashboard")
+
+__all__ = ["NAME", "DashboardConfig", "Running", "main", "start"]
 
 
-class DashboardConfig(ServiceConfig):
-    """Configuration of the dashboard service (section `dashboard:` of the YAML file)."""
+@dataclass
+class Running:
+    """A dashboard serving in this process: its feed, web server and thread."""
+
+    feed: BusFeed
+    server: uvicorn.Server
+    thread: threading.Thread
+    url: str
+    bridge: object | None = None
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout_s)
+        if self.bridge is not None:
+            self.bridge.stop()  # type: ignore[attr-defined]
+        self.feed.close()
+
+
+def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Running:
+    """Check the binding and tokens, subscribe, and serve on a thread; returns once listening.
+    Raises UserError for a bad token setting or calibration file."""
+    tokens = tokens if tokens is not None else load_tokens(config.token_file)
+    check_binding(config.is_loopback(), config.host, tokens)
+    calibration = None
+    if config.calibration_file:
+        try:
+            calibration = Calibration.load_yaml(input_file(config.calibration_file, "calibration file"))
+        except CalibrationError as e:
+            raise UserError(f"{config.calibration_file}: {e}") from None
+    feed = BusFeed(
+        bus,
+        trail_samples=config.trail_samples,
+        reference_samples=config.reference_samples,
+        vision_samples=config.vision_samples,
+        stale_after_s=config.stale_after_s,
+        calibration=calibration,
+    )
+    app = create_app(feed, config, tokens, RecorderClient(bus))
+    server = uvicorn.Server(
+        uvicorn.Config(app, host=config.host, port=config.port, log_level="warning", access_log=False, lifespan="on")
+    )
+    thread = threading.Thread(target=server.run, name="dashboard-http", daemon=True)
+    thread.start()
+    while not server.started:
+        if not thread.is_alive():
+            feed.close()
+            raise UserError(f"dashboard: cannot listen on {config.host}:{config.port} (see the log above)")
+        thread.join(0.02)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    host = f"[{config.host}]" if ":" in config.host else config.host
+    running = Running(feed, server, thread, f"http://{host}:{port}")
+    if config.foxglove_bridge:
+        from services.dashboard.foxglove_bridge import FoxgloveBridge
+
+        running.bridge = FoxgloveBridge.start(bus, config)
+    return running
+
+
+def _body(ctx: ServiceContext[DashboardConfig]) -> None:
+    try:
+        running = start(ctx.bus, ctx.config)
+    except UserError as e:
+        ctx.log.error("%s", e)
+        raise SystemExit(2) from None
+    ctx.log.info(
+        "dashboard at %s (%s)",
+        running.url,
+        "tokens required" if load_tokens(ctx.config.token_file).enabled else "loopback, no tokens",
+    )
+    try:
+        while not ctx.stop.wait(0.5):
+            if not running.thread.is_alive():
+                ctx.log.error("web server stopped unexpectedly")
+                raise SystemExit(1)
+    finally:
+        running.stop()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_service(NAME, DashboardConfig, idle_until_stopped, argv, description=__doc__)
+    return run_service(NAME, DashboardConfig, _body, argv, description=__doc__)

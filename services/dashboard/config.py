@@ -1,0 +1,63 @@
+"""Configuration of the dashboard (section `dashboard:` of the YAML file).
+
+Tokens are deliberately not fields here: configuration can be given with `--set` on the
+command line and is logged at start. They come from the environment
+(`TIPLOG_DASHBOARD_VIEWER_TOKEN`, `TIPLOG_DASHBOARD_OPERATOR_TOKEN`) or from `token_file`
+(see `services.dashboard.auth`).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+
+from pydantic import Field, field_validator
+
+from tiplog.config import ServiceConfig
+
+
+class DashboardConfig(ServiceConfig):
+    """Where the dashboard listens and what it keeps. Periods in seconds, rates in Hz."""
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)  # 0: any free port (tests)
+    # YAML file with `viewer:` and `operator:` tokens (each a string or a list of strings).
+    token_file: str | None = None
+    # Trail kept for the page: 2 min at the gyro rate (the page keeps the same).
+    trail_samples: int = Field(24_000, ge=100, le=1_000_000)
+    reference_samples: int = Field(24_000, ge=100, le=1_000_000)
+    vision_samples: int = Field(2_000, ge=10, le=100_000)
+    # Most rows in one websocket message: a client that fell behind catches up in such steps.
+    max_batch_rows: int = Field(4_000, ge=10, le=100_000)
+    # Health: a service whose token is up but whose streams have been silent this long is stale.
+    stale_after_s: float = Field(2.0, gt=0.0, le=600.0)
+    # Status (health, rates, recorder, diagnostics) pushed to each page this often.
+    push_status_period_s: float = Field(0.5, gt=0.0, le=10.0)
+    # Calibration file (tiplog.calibration YAML) for drawing vision observations in the base frame.
+    calibration_file: str | None = None
+    # Foxglove live: serve the bus's topics with their schemas on a Foxglove WebSocket server.
+    foxglove_bridge: bool = False
+    foxglove_host: str = "127.0.0.1"
+    foxglove_port: int = Field(8765, ge=0, le=65535)
+    # Topics the bridge serves (key expression under the bus prefix).
+    foxglove_topics: str = "**"
+
+    @field_validator("host", "foxglove_host")
+    @classmethod
+    def _host_shape(cls, v: str) -> str:
+        if not v or any(c.isspace() for c in v):
+            raise ValueError("must be a host name or IP address")
+        return v
+
+    def is_loopback(self) -> bool:
+        """True when `host` only accepts connections from this machine."""
+        return host_is_loopback(self.host)
+
+
+def host_is_loopback(host: str) -> bool:
+    """127.0.0.0/8, ::1 and 'localhost' are loopback; anything else (0.0.0.0 above all) is not."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

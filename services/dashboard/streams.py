@@ -1,0 +1,169 @@
+"""What the dashboard knows about the bus besides the state: per-topic rates and drops, service
+health from liveliness tokens, and the working envelope visited so far.
+
+All `on_*` methods run on Zenoh's threads and only count or store under a lock; the
+snapshots are built on the web server's side.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tiplog.clock import now_ns
+
+# Which streams show that a service is doing its work (prefixes of topics it publishes).
+SERVICE_TOPICS: dict[str, tuple[str, ...]] = {
+    "bench": ("bench/",),
+    "sensor_gateway": ("device/",),
+    "vision": ("vision/",),
+    "fusion": ("fusion/",),
+    "recorder": ("recorder/",),
+    "dashboard": (),
+}
+
+
+@dataclass
+class _TopicCount:
+    count: int = 0
+    gaps: int = 0
+    last_ns: int = 0
+    last_seq: dict[int, int] = field(default_factory=dict)  # publisher id -> last bus seq
+    rate_hz: float = 0.0
+    count_at_rate: int = 0
+
+
+class StreamStats:
+    """Per-topic counts, rates (over the last status period) and sequence gaps."""
+
+    def __init__(self) -> None:
+        self._topics: dict[str, _TopicCount] = {}
+        self._lock = threading.Lock()
+        self._rate_ns = now_ns()
+
+    def on_sample(self, topic: str, seq: int, publisher_id: int, receive_ns: int) -> None:
+        with self._lock:
+            tc = self._topics.get(topic)
+            if tc is None:
+                tc = self._topics[topic] = _TopicCount()
+            tc.count += 1
+            tc.last_ns = receive_ns
+            prev = tc.last_seq.get(publisher_id)
+            if prev is not None and seq > prev + 1:
+                tc.gaps += seq - prev - 1
+            tc.last_seq[publisher_id] = seq
+
+    def last_seen_ns(self, prefixes: tuple[str, ...]) -> int:
+        """Newest arrival on any topic starting with one of `prefixes` (0: never)."""
+        with self._lock:
+            return max((tc.last_ns for t, tc in self._topics.items() if t.startswith(prefixes)), default=0)
+
+    def snapshot(self, min_period_s: float = 0.25) -> dict[str, dict[str, float]]:
+        """{topic: {count, rate_hz, dropped, age_s}}; rates are refreshed at most every
+        `min_period_s` over the interval since the last refresh."""
+        t = now_ns()
+        with self._lock:
+            dt_s = (t - self._rate_ns) / 1e9
+            if dt_s >= min_period_s:
+                for tc in self._topics.values():
+                    tc.rate_hz = (tc.count - tc.count_at_rate) / dt_s
+                    tc.count_at_rate = tc.count
+                self._rate_ns = t
+            return {
+                topic: {
+                    "count": tc.count,
+                    "rate_hz": round(tc.rate_hz, 1),
+                    "dropped": tc.gaps,
+                    "age_s": round((t - tc.last_ns) / 1e9, 3),
+                }
+                for topic, tc in sorted(self._topics.items())
+            }
+
+
+class Health:
+    """Services by liveliness token: up (token and fresh streams), stale (token, streams silent
+    longer than `stale_after_s`), down (no token)."""
+
+    def __init__(self, streams: StreamStats, stale_after_s: float):
+        self._streams = streams
+        self._stale_ns = int(stale_after_s * 1e9)
+        self._alive: dict[str, bool] = {}
+        self._changed_ns: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def on_token(self, service: str, alive: bool) -> None:
+        with self._lock:
+            self._alive[service] = alive
+            self._changed_ns[service] = now_ns()
+
+    def snapshot(self) -> dict[str, dict[str, object]]:
+        """{service: {state: up|stale|down, since_s, last_data_age_s}} for the known services
+        and any other token seen."""
+        t = now_ns()
+        with self._lock:
+            names = sorted(set(SERVICE_TOPICS) | set(self._alive))
+            alive = dict(self._alive)
+            changed = dict(self._changed_ns)
+        out: dict[str, dict[str, object]] = {}
+        for name in names:
+            prefixes = SERVICE_TOPICS.get(name, ())
+            last = self._streams.last_seen_ns(prefixes) if prefixes else 0
+            age_s = (t - last) / 1e9 if last else None
+            if not alive.get(name, False):
+                state = "down"
+            elif prefixes and (last == 0 or t - last > self._stale_ns):
+                state = "stale"
+            else:
+                state = "up"
+            since = changed.get(name)
+            out[name] = {
+                "state": state,
+                "token": alive.get(name, False),
+                "since_s": round((t - since) / 1e9, 1) if since else None,
+                "last_data_age_s": round(age_s, 3) if age_s is not None else None,
+            }
+        return out
+
+
+class Envelope:
+    """Occupancy of insertion depth x tilt visited so far (every state sample counts)."""
+
+    DEPTH_MM = (80.0, 200.0, 2.0)  # lo, hi, bin
+    TILT_DEG = (0.0, 40.0, 1.0)
+
+    def __init__(self) -> None:
+        d0, d1, db = self.DEPTH_MM
+        t0, t1, tb = self.TILT_DEG
+        self.counts = np.zeros((int((d1 - d0) / db), int((t1 - t0) / tb)), dtype=np.int64)
+        self.depth_range_mm = [np.inf, -np.inf]
+        self.tilt_max_deg = 0.0
+        self._lock = threading.Lock()
+
+    def add(self, depth_mm: float, tilt_deg: float) -> None:
+        if not (np.isfinite(depth_mm) and np.isfinite(tilt_deg)):
+            return
+        d0, _, db = self.DEPTH_MM
+        t0, _, tb = self.TILT_DEG
+        i = min(max(int((depth_mm - d0) // db), 0), self.counts.shape[0] - 1)
+        j = min(max(int((abs(tilt_deg) - t0) // tb), 0), self.counts.shape[1] - 1)
+        with self._lock:
+            self.counts[i, j] += 1
+            self.depth_range_mm = [min(self.depth_range_mm[0], depth_mm), max(self.depth_range_mm[1], depth_mm)]
+            self.tilt_max_deg = max(self.tilt_max_deg, abs(tilt_deg))
+
+    def snapshot(self) -> dict[str, object]:
+        """Visited cells as [[depth_bin, tilt_bin, count], ...] with the bin edges."""
+        with self._lock:
+            ii, jj = np.nonzero(self.counts)
+            cells = [[int(i), int(j), int(self.counts[i, j])] for i, j in zip(ii, jj, strict=True)]
+            lo, hi = self.depth_range_mm
+            return {
+                "depth_bins_mm": list(self.DEPTH_MM),
+                "tilt_bins_deg": list(self.TILT_DEG),
+                "cells": cells,
+                "depth_min_mm": round(lo, 2) if np.isfinite(lo) else None,
+                "depth_max_mm": round(hi, 2) if np.isfinite(hi) else None,
+                "tilt_max_deg": round(self.tilt_max_deg, 2),
+            }
