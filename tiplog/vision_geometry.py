@@ -116,3 +116,37 @@ def tilt_normal(n: np.ndarray, angle_a: np.ndarray, angle_b: np.ndarray, u: np.n
     a = np.asarray(angle_a, float)[..., None]
     b = np.asarray(angle_b, float)[..., None]
     return _unit(n + a * t1 + b * t2)
+
+
+def normal_from_image_line(line_px: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """Unit normal (..., 3), camera frame, of the plane through the camera centre whose image is the
+    line a u + b v + c = 0 in undistorted pixels (line_px (..., 3)); signed like the line: n . X > 0
+    for points X whose pixels give a u + b v + c > 0 (the inside of a silhouette edge)."""
+    line = np.asarray(line_px, dtype=float)
+    a, b, c = line[..., 0], line[..., 1], line[..., 2]
+    return _unit(np.stack([a * fx, b * fy, a * cx + b * cy + c], -1))
+
+
+def line_from_normal(n: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """Inverse of `normal_from_image_line`: the plane's image line (..., 3) in undistorted pixels,
+    (a, b) unit, signed like n."""
+    n = np.asarray(n, dtype=float)
+    a, b = n[..., 0] / fx, n[..., 1] / fy
+    c = n[..., 2] - a * cx - b * cy
+    return np.stack([a, b, c], -1) / np.hypot(a, b)[..., None]
+
+
+def junction_on_axis(
+    ray: np.ndarray, p0: np.ndarray, u: np.ndarray, rho_s: float, rim: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Axis point [m] (..., 3) of the shaft junction seen along `ray` (camera frame, through the
+    camera centre), with its axis coordinate s from p0 [m] and the conditioning 1 - (d.u)^2.
+
+    With rim=True the ray is taken to graze the end rim of the shaft on its side nearest the
+    camera, as the silhouette's end does on the image's centre line: since p0 is the axis point
+    closest to the camera, that rim runs along the line {p0 (1 - rho_s/|p0|) + s u}, parallel to
+    the axis, and the ray is intersected with it; rim=False intersects with the axis itself."""
+    p0 = np.asarray(p0, dtype=float)
+    base = p0 * (1.0 - rho_s / np.linalg.norm(p0, axis=-1, keepdims=True)) if rim else p0
+    s, _, cond = ray_axis_intersection(ray, base, u)
+    return p0 + s[..., None] * _unit(u), s, cond
