@@ -1,0 +1,397 @@
+"""The tracking error-state Kalman filter under the trocar's remote centre of motion: pure
+numpy, no bus, no files.
+
+Nominal state (`State`): tip position p and velocity v in the base frame [m, m/s], tool
+orientation R_base_tool, gyro bias b_g and accelerometer bias b_a in the IMU frame [rad/s,
+m/s^2], ToF range offset b_rho [m]. Error state [dp, dv, dtheta, db_g, db_a, db_rho] (16),
+dtheta in tool coordinates (R = R_nom Exp(dtheta)). Propagation by the gyroscope and the raw
+accelerometer, the specific force moved from the IMU to the tip (a_tip = a_I + alpha x r_I +
+w x (w x r_I)); updates: gravity (down-weighted as |a| departs from g), the RCM as a 2-D
+pseudo-measurement, ToF through the ray-plane model plus b_rho, vision tangent planes (shaft
+direction and the axis' offset) and the junction ray (the tip, unconstrained along the line of
+sight). Every update passes an innovation (chi-square) gate; counts go to `State.counts`.
+Measurement times are already latency-corrected by the caller (the runner).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from services.fusion.init import initial_rotation
+from services.fusion.params import SENSORS, Params
+from tiplog.calibration import Calibration
+
+G_BASE = np.array([0.0, 0.0, -9.80665])
+G = 9.80665
+N = 16
+IP, IV, ITH, IBG, IBA, IBR = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15), 15
+E_Z = np.array([0.0, 0.0, 1.0])
+DEG = math.pi / 180.0
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def exp_so3(w: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues, scalar fast path)."""
+    x, y, z = float(w[0]), float(w[1]), float(w[2])
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-12:
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+class State:
+    """Nominal state, covariance and the bookkeeping a rewind must restore (copy() is exact)."""
+
+    __slots__ = (
+        "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
+        "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis",
+    )  # fmt: skip
+
+    def copy(self) -> State:
+        s = State.__new__(State)
+        for k in ("t_ns", "brho", "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run"):
+            setattr(s, k, getattr(self, k))
+        for k in ("p", "v", "R", "bg", "ba", "P", "w_imu", "f_imu", "alpha_tool"):
+            setattr(s, k, getattr(self, k).copy())
+        s.w_prev = list(self.w_prev)
+        s.counts = dict(self.counts)
+        s.nis = dict(self.nis)
+        return s
+
+    def finite(self) -> bool:
+        return bool(np.isfinite(self.p).all() and np.isfinite(self.R).all() and np.isfinite(self.P).all())
+
+
+def _bump(d: dict, key: str, by: float = 1.0) -> None:
+    d[key] = d.get(key, 0) + by
+
+
+class TrackingFilter:
+    """Stateless maths over a `State`: every method takes the state and returns/mutates it, so
+    the runner can snapshot and rewind. `sensors` switches streams off (ablation)."""
+
+    def __init__(self, calib: Calibration, params: Params, sensors: frozenset[str] = SENSORS):
+        self.c = calib
+        self.prm = params
+        self.imu = "imu" in sensors
+        self.tof = "tof" in sensors
+        self.vision = "vision" in sensors
+        self.R_ti = calib.R_tool_imu
+        self.r_imu_tip_tool = -calib.p_imu_tool_m  # lever arm from the IMU to the tip, tool coordinates
+        self.A = calib.R_base_camera.T  # base -> camera
+        self.c_cam = calib.p_base_camera_m
+        self.rcm = calib.rcm_base_m
+        self.rcm_cam = self.A @ (self.rcm - self.c_cam)
+        self.jp = calib.junction_proximal_m + calib.vision_tip_offset_m
+        p = params
+        self.q_gyro = (p.gyro_noise_dps_rthz * DEG) ** 2
+        self.q_acc = p.accel_noise_mps2_rthz**2
+        self.q_ba = p.accel_bias_rw_mps2_rts**2
+        self.q_brho = (p.tof_offset_rw_mm_rts * 1e-3) ** 2
+        self.rcm_var = (p.rcm_sigma_mm * 1e-3) ** 2
+        self.tof_var = (p.tof_sigma_mm * 1e-3) ** 2
+        self.plane_var = (p.vision_plane_sigma_deg * DEG) ** 2
+        self.offset_var = (p.vision_offset_sigma_mm * 1e-3) ** 2
+        self.ray_var = (p.vision_ray_sigma_mm * 1e-3) ** 2
+        self.grav_period_ns = int(1e9 / p.gravity_rate_hz) if p.gravity_rate_hz > 0 else None
+
+    # ------------------------------------------------------------------ initialisation
+    def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
+        p = self.prm
+        s = State()
+        s.t_ns = int(t_ns)
+        s.R = R.copy()
+        s.p = self.rcm + depth_m * R[:, 2]
+        s.v = np.zeros(3)
+        s.bg = np.zeros(3)
+        s.ba = np.zeros(3)
+        s.brho = 0.0
+        d = np.empty(N)
+        d[IP] = (p.init_position_mm * 1e-3) ** 2
+        d[IV] = p.init_velocity_mps**2
+        d[ITH] = (p.init_attitude_deg * DEG) ** 2
+        d[IBG] = (p.init_gyro_bias_dps * DEG) ** 2
+        d[IBA] = p.init_accel_bias_mps2**2
+        d[IBR] = (p.init_tof_offset_mm * 1e-3) ** 2
+        s.P = np.diag(d)
+        s.w_imu = np.zeros(3)
+        s.f_imu = np.zeros(3) if f_imu is None else np.asarray(f_imu, float).copy()
+        s.w_prev = []
+        s.alpha_tool = np.zeros(3)
+        s.gyro_n = 0
+        s.last_grav_ns = -(1 << 62)
+        s.last_tip_ns = -(1 << 62)
+        s.last_vision_ns = -(1 << 62)
+        s.vis_reject_run = 0
+        s.counts = {}
+        s.nis = {}
+        return s
+
+    def init_from_vision(self, t_ns: int, obs: dict, f_imu: np.ndarray | None) -> State | None:
+        """A state from one vision frame with a visible junction (shaft direction from the mean
+        tangent plane and the plane through the RCM and the junction ray, depth from the ray),
+        roll from the accelerometer's gravity; None when the frame cannot serve."""
+        if not obs["junction_visible"]:
+            return None
+        n_l, n_r, d = obs["n_left"], obs["n_right"], obs["ray"]
+        rho = self.c.shaft_radius_m
+        if max(abs(n_l @ self.rcm_cam - rho), abs(n_r @ self.rcm_cam - rho)) > self.prm.trocar_gate_mm * 1e-3:
+            return None
+        m = n_l + n_r
+        q = np.cross(self.rcm_cam, d)
+        u_c = np.cross(m, q)
+        nu = np.linalg.norm(u_c)
+        if nu < 1e-9:
+            return None
+        u_c /= nu
+        s_axis, t_ray = _closest_params(self.rcm_cam, u_c, d)
+        if s_axis < 0:
+            u_c, s_axis = -u_c, -s_axis
+        depth = s_axis + self.jp
+        if not (0.02 < depth < 0.4):
+            return None
+        u = self.A.T @ u_c
+        R = initial_rotation(u, f_imu, self.R_ti)
+        s = self.new_state(t_ns, R, depth, f_imu)
+        s.last_tip_ns = s.last_vision_ns = int(t_ns)
+        return s
+
+    # ------------------------------------------------------------------ propagation
+    def propagate(self, s: State, t_ns: int) -> None:
+        """Nominal state and covariance forward to t_ns with the latest gyro/accel samples held."""
+        dt = (t_ns - s.t_ns) * 1e-9
+        if dt <= 0.0:
+            return
+        s.t_ns = int(t_ns)
+        R = s.R
+        prm = self.prm
+        if self.imu:
+            w_tool = self.R_ti @ (s.w_imu - s.bg)
+            f_tool = self.R_ti @ (s.f_imu - s.ba)
+            r = R @ self.r_imu_tip_tool
+            w_b = R @ w_tool
+            a = R @ f_tool + G_BASE + np.cross(R @ s.alpha_tool, r) + np.cross(w_b, np.cross(w_b, r))
+            wn = math.sqrt(float(w_tool @ w_tool))
+        else:
+            w_tool = np.zeros(3)
+            f_tool = np.zeros(3)
+            a = np.zeros(3)
+            wn = 0.0
+        s.p += s.v * dt + 0.5 * dt * dt * a
+        s.v += a * dt
+        s.R = R @ exp_so3(w_tool * dt)
+        F = np.eye(N)
+        F[IP, IV] = np.eye(3) * dt
+        Q = np.zeros(N)
+        if self.imu:
+            F[IV, ITH] = -(R @ skew(f_tool)) * dt
+            RR = R @ self.R_ti
+            F[IV, IBA] = -RR * dt
+            F[ITH, ITH] = exp_so3(-w_tool * dt)
+            F[ITH, IBG] = -self.R_ti * dt
+            Q[IV] = self.q_acc * dt
+            Q[ITH] = self.q_gyro * dt
+            bg_rw = (prm.gyro_bias_rw_dps_rts + prm.gyro_bias_rw_dps_rts_per_radps * wn) * DEG
+            Q[IBG] = bg_rw * bg_rw * dt
+            Q[IBA] = self.q_ba * dt
+        else:
+            Q[IV] = prm.no_imu_accel_rw_mps2_rts**2 * dt
+            Q[ITH] = (prm.no_imu_rate_rw_dps_rts * DEG) ** 2 * dt
+        Q[IBR] = self.q_brho * dt
+        P = F @ s.P @ F.T
+        P[np.diag_indices(N)] += Q
+        s.P = P
+
+    def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
+        self.propagate(s, t_ns)
+        if self.imu:
+            w = np.asarray(w_imu, float)
+            s.w_prev.append((int(t_ns), w))
+            k = self.prm.alpha_window
+            if len(s.w_prev) > k:
+                t0, w0 = s.w_prev.pop(0)
+                dt = (t_ns - t0) * 1e-9
+                if dt > 0:
+                    s.alpha_tool = self.R_ti @ ((w - w0) / dt)
+            s.w_imu = w
+        s.gyro_n += 1
+        if s.gyro_n % self.prm.rcm_every == 0:
+            self.update_rcm(s)
+
+    def on_accel(self, s: State, t_ns: int, f_imu: np.ndarray) -> None:
+        if not self.imu:
+            return
+        self.propagate(s, t_ns)
+        s.f_imu = np.asarray(f_imu, float)
+        if self.grav_period_ns is not None and t_ns - s.last_grav_ns >= self.grav_period_ns:
+            s.last_grav_ns = int(t_ns)
+            self.update_gravity(s)
+
+    # ------------------------------------------------------------------ updates
+    def _update(self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
+                freeze_brho: bool = False) -> bool:  # fmt: skip
+        PHt = s.P @ H.T
+        S = H @ PHt
+        S[np.diag_indices(len(y))] += r_var
+        try:
+            Sinv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            _bump(s.counts, f"rejected:{name}:singular")
+            return False
+        nis = float(y @ Sinv @ y)
+        if not nis <= chi2:
+            _bump(s.counts, f"rejected:{name}:innovation")
+            return False
+        _bump(s.counts, f"updates:{name}")
+        _bump(s.nis, name, nis)
+        K = PHt @ Sinv
+        if freeze_brho:
+            K[IBR] = 0.0
+            IKH = np.eye(N) - K @ H
+            P = IKH @ s.P @ IKH.T + (K * r_var) @ K.T
+        else:
+            P = s.P - K @ PHt.T
+        s.P = 0.5 * (P + P.T)
+        dx = K @ y
+        s.p += dx[IP]
+        s.v += dx[IV]
+        s.R = s.R @ exp_so3(dx[ITH])
+        s.bg += dx[IBG]
+        s.ba += dx[IBA]
+        s.brho += float(dx[IBR])
+        return True
+
+    def update_rcm(self, s: State) -> bool:
+        """The shaft line through the registered RCM: (R^T (r - p))_xy = 0, 2-D."""
+        Rt = s.R.T
+        d = Rt @ (self.rcm - s.p)
+        H = np.zeros((2, N))
+        H[:, IP] = -Rt[:2]
+        H[:, ITH] = skew(d)[:2]
+        return self._update(s, H, -d[:2], np.full(2, self.rcm_var), self.prm.gate_chi2_2, "rcm")
+
+    def update_gravity(self, s: State) -> bool:
+        """Specific force at the IMU against gravity plus the lever arm's centripetal and
+        tangential terms (tip acceleration taken as zero), down-weighted as |f| leaves g."""
+        R = s.R
+        w_b = R @ (self.R_ti @ (s.w_imu - s.bg))
+        r = R @ self.r_imu_tip_tool
+        a_imu = -np.cross(R @ s.alpha_tool, r) - np.cross(w_b, np.cross(w_b, r))
+        w = R.T @ (a_imu - G_BASE)
+        f_pred = self.R_ti.T @ w + s.ba
+        excess = abs(math.sqrt(float(s.f_imu @ s.f_imu)) / G - 1.0)
+        sig = (self.prm.gravity_sigma_deg + self.prm.gravity_sigma_per_excess * excess) * DEG * G
+        H = np.zeros((3, N))
+        H[:, ITH] = self.R_ti.T @ skew(w)
+        H[:, IBA] = np.eye(3)
+        return self._update(s, H, s.f_imu - f_pred, np.full(3, sig * sig), self.prm.gate_chi2_3, "gravity")
+
+    def update_tof(self, s: State, range_m: float) -> bool:
+        """Raw range through the ray-plane model rho = (h - m.(p + R o)) / (m.(R b)) + b_rho;
+        b_rho moves only while vision gave an independent tip within the offset window."""
+        if not self.tof:
+            return False
+        c = self.c
+        m = c.tof_plane_normal_base
+        R = s.R
+        Ro = R @ c.tof_origin_tool_m
+        Rb = R @ c.tof_beam_tool
+        den = float(m @ Rb)
+        if den < 0.05:
+            _bump(s.counts, "rejected:tof:grazing")
+            return False
+        num = c.tof_plane_h_m - float(m @ (s.p + Ro))
+        rho = num / den + s.brho
+        mR = m @ R
+        H = np.zeros((1, N))
+        H[0, IP] = -m / den
+        H[0, ITH] = (mR @ skew(c.tof_origin_tool_m)) / den + (num / den**2) * (mR @ skew(c.tof_beam_tool))
+        H[0, IBR] = 1.0
+        window = self.prm.tof_offset_window_ms * 1e6
+        free = self.vision and (s.t_ns - s.last_tip_ns) <= window
+        y = np.array([range_m - rho])
+        return self._update(s, H, y, np.array([self.tof_var]), self.prm.gate_chi2_1, "tof", freeze_brho=not free)
+
+    def update_vision(self, s: State, obs: dict) -> bool:
+        """One accepted frame (camera frame: normals n_left/n_right, junction ray): tangent
+        planes (direction and offset of the axis) if the frame passes the trocar gate, the
+        junction ray (tip) if visible and well conditioned."""
+        if not self.vision:
+            return False
+        prm = self.prm
+        A = self.A
+        n = np.stack([obs["n_left"], obs["n_right"]])
+        rho = self.c.shaft_radius_m
+        gate = np.abs(n @ self.rcm_cam - rho).max()
+        passed = gate <= prm.trocar_gate_mm * 1e-3
+        applied = False
+        u = s.R[:, 2]
+        if passed:
+            nA = n @ A
+            H = np.zeros((4, N))
+            H[:2, ITH] = -(nA @ s.R) @ skew(E_Z)
+            H[2:, IP] = nA
+            y = np.concatenate([-(nA @ u), rho - nA @ (s.p - self.c_cam)])
+            r = np.array([self.plane_var, self.plane_var, self.offset_var, self.offset_var])
+            applied |= self._update(s, H, y, r, prm.gate_chi2_4, "vision_axis")
+        else:
+            _bump(s.counts, "rejected:vision_axis:trocar_gate")
+        if obs["junction_visible"] and (passed or prm.gated_out_tip):
+            d = obs["ray"]
+            u_c = A @ s.R[:, 2]
+            if 1.0 - float(d @ u_c) ** 2 < prm.junction_min_sin2:
+                _bump(s.counts, "rejected:vision_tip:ill_conditioned")
+            else:
+                E = _perp_basis(d)
+                EA = E @ A
+                J = s.p - self.jp * u
+                H = np.zeros((2, N))
+                H[:, IP] = EA
+                H[:, ITH] = (EA @ s.R) @ skew(E_Z) * self.jp
+                y = -(EA @ (J - self.c_cam))
+                if self._update(s, H, y, np.full(2, self.ray_var), prm.gate_chi2_2, "vision_tip"):
+                    s.last_tip_ns = s.t_ns
+                    applied = True
+        s.vis_reject_run = 0 if applied else s.vis_reject_run + 1
+        if applied:
+            s.last_vision_ns = s.t_ns
+        return applied
+
+    def diverged(self, s: State) -> str | None:
+        """Why the state must be reset, or None."""
+        if not s.finite():
+            return "not_finite"
+        if float(s.P[0, 0] + s.P[1, 1] + s.P[2, 2]) > (self.prm.max_position_sigma_mm * 1e-3) ** 2:
+            return "covariance"
+        if self.vision and s.vis_reject_run >= self.prm.reset_after_vision_rejections:
+            return "innovation"
+        return None
+
+
+def _perp_basis(d: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal rows perpendicular to unit d."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(d, a)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(d, e1)])
+
+
+def _closest_params(p0: np.ndarray, u: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+    """(s, t) minimising |p0 + s u - t d| for unit u, d."""
+    du = float(d @ u)
+    dp = float(d @ p0)
+    up = float(u @ p0)
+    den = 1.0 - du * du
+    if den < 1e-9:
+        return 0.0, dp
+    s = (du * dp - up) / den
+    return s, dp + s * du

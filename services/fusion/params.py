@@ -1,0 +1,150 @@
+"""The tracking filter's parameters: one set, fixed before any evaluation block, used by the
+live service and by `tiplog fusion run` alike.
+
+Units are in the field names. Noise densities are continuous-time (per sqrt(Hz) or
+per sqrt(s)); measurement sigmas are per update, already inflated for correlated samples as
+the paper's noise model prescribes (held-out residual times sqrt(N_c)). The values were tuned
+on bench seeds >= 1000 only (see docs/fusion.md); evaluation seeds never fed back into them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+SENSORS = frozenset({"imu", "tof", "vision"})
+
+
+class ParamsError(ValueError):
+    """A parameter file or value that cannot be used; the message names the field."""
+
+
+@dataclass(frozen=True)
+class Params:
+    # --- timing -------------------------------------------------------------------------
+    output_delay_ms: float = 30.0  # published state held this far behind real time
+    history_ms: float = 1500.0  # snapshots kept for out-of-sequence rewinds
+    max_age_ms: float = 1000.0  # a measurement older than this on arrival is dropped
+    # --- process noise ------------------------------------------------------------------
+    gyro_noise_dps_rthz: float = 0.02
+    gyro_bias_rw_dps_rts: float = 0.003  # at rest
+    gyro_bias_rw_dps_rts_per_radps: float = 0.35  # extra, per rad/s of angular rate
+    accel_noise_mps2_rthz: float = 0.03  # includes the lever arm's angular-acceleration noise
+    accel_bias_rw_mps2_rts: float = 0.0005
+    tof_offset_rw_mm_rts: float = 1.5
+    alpha_window: int = 4  # gyro samples spanned by the angular-acceleration difference
+    # without IMU (ablation): random walks standing in for the gyro and accelerometer
+    no_imu_rate_rw_dps_rts: float = 40.0
+    no_imu_accel_rw_mps2_rts: float = 0.3
+    # --- initial uncertainty ------------------------------------------------------------
+    init_gyro_bias_dps: float = 0.05
+    init_accel_bias_mps2: float = 0.02
+    init_tof_offset_mm: float = 5.0
+    init_position_mm: float = 2.0
+    init_velocity_mps: float = 0.02
+    init_attitude_deg: float = 1.0
+    # --- measurements -------------------------------------------------------------------
+    rcm_sigma_mm: float = 0.3
+    rcm_every: int = 1  # RCM pseudo-measurement every n-th gyro sample
+    gravity_sigma_deg: float = 0.6
+    gravity_sigma_per_excess: float = 20.0  # sigma grows by this many deg per unit | |a|/g - 1 |
+    gravity_rate_hz: float = 20.0
+    tof_sigma_mm: float = 6.0
+    tof_min_mm: float = 20.0
+    tof_max_mm: float = 400.0
+    tof_offset_window_ms: float = 2000.0  # b_rho estimated only within this of an independent vision tip
+    vision_plane_sigma_deg: float = 0.25
+    vision_offset_sigma_mm: float = 0.4
+    vision_ray_sigma_mm: float = 0.6
+    trocar_gate_mm: float = 3.5
+    gated_out_tip: bool = True  # use the tip (not the axis) of frames that fail the trocar gate
+    junction_min_sin2: float = 0.45
+    vision_lock_ms: float = 500.0
+    # --- innovation gating and divergence ----------------------------------------------
+    gate_chi2_1: float = 10.83  # 99.9 % of chi2 with 1 degree of freedom
+    gate_chi2_2: float = 13.82
+    gate_chi2_4: float = 18.47
+    gate_chi2_3: float = 16.27
+    reset_after_vision_rejections: int = 15  # consecutive rejected vision frames -> divergence
+    max_position_sigma_mm: float = 200.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool):
+                continue
+            if not isinstance(v, (int, float)) or v != v:
+                raise ParamsError(f"fusion parameter {f.name}: must be a number (got {v!r})")
+            if v < 0:
+                raise ParamsError(f"fusion parameter {f.name}: must be >= 0 (got {v})")
+        for name in ("rcm_every", "alpha_window"):
+            if int(getattr(self, name)) < 1:
+                raise ParamsError(f"fusion parameter {name}: must be >= 1")
+        if self.max_age_ms > self.history_ms:
+            raise ParamsError("fusion parameter max_age_ms: must not exceed history_ms")
+
+    @property
+    def output_delay_ns(self) -> int:
+        return int(round(self.output_delay_ms * 1e6))
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def with_(self, **changes: Any) -> Params:
+        return replace(self, **changes)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], where: str = "parameters") -> Params:
+        if not isinstance(d, dict):
+            raise ParamsError(f"{where}: expected a mapping of parameter names to values")
+        names = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(d) - set(names))
+        if unknown:
+            raise ParamsError(f"{where}: unknown parameter(s) {', '.join(unknown)}")
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            default = getattr(cls, k)
+            try:
+                out[k] = bool(v) if isinstance(default, bool) else type(default)(v)
+            except (TypeError, ValueError):
+                raise ParamsError(f"{where}: parameter {k}: expected a number (got {v!r})") from None
+        try:
+            return cls(**out)
+        except ParamsError as e:
+            raise ParamsError(f"{where}: {e}") from None
+
+    @classmethod
+    def load_yaml(cls, path: str | Path) -> Params:
+        """A YAML mapping of parameter names (optionally under `fusion_params:`)."""
+        p = Path(path)
+        try:
+            doc = yaml.safe_load(p.read_text())
+        except OSError as e:
+            raise ParamsError(f"{p}: cannot read ({e.strerror or e})") from None
+        except yaml.YAMLError:
+            raise ParamsError(f"{p}: not valid YAML") from None
+        if isinstance(doc, dict) and "fusion_params" in doc:
+            doc = doc["fusion_params"]
+        return cls.from_dict(doc or {}, where=str(p))
+
+
+def parse_sensors(text: str | None) -> frozenset[str]:
+    """'imu,tof,vision' -> frozenset; ValueError naming an unknown sensor."""
+    if text is None or text.strip() in ("", "all"):
+        return SENSORS
+    out = frozenset(s.strip() for s in text.split(",") if s.strip())
+    bad = sorted(out - SENSORS)
+    if bad:
+        raise ParamsError(f"--sensors: unknown sensor(s) {', '.join(bad)} (choose from imu, tof, vision)")
+    if not out:
+        raise ParamsError("--sensors: empty")
+    return out
+
+
+def mode_name(sensors: frozenset[str]) -> str:
+    if sensors == SENSORS:
+        return "full"
+    return "_".join(s for s in ("imu", "tof", "vision") if s in sensors) + "_only" * (len(sensors) == 1)

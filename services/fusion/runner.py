@@ -1,0 +1,314 @@
+"""`FusionRunner`: the tracking filter fed message by message, live or offline, with the same
+result either way.
+
+Times: every stream is shifted by its calibrated latency (t = header stamp - latency); vision
+stamps are capture stamps. Messages are fed in arrival order. The state at gyro time t_k is
+published with exactly the information that had arrived by its publication time
+c_k = max(t_k + output_delay, arrival of gyro k): the runner incorporates, in time order, every
+message that arrived by c_k and is not later than t_k, rewinding its history (snapshots after
+every gyro sample) when one is older than what it already processed (late vision). So the
+output depends only on the inputs, never on how `advance` calls interleave with `feed`:
+offline (`feed` everything, then `finish`) equals live. A measurement that arrives more than
+`max_age_ms` after its time, or older than the kept history, is counted and dropped.
+"""
+
+from __future__ import annotations
+
+import bisect
+import heapq
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from services.fusion.filter import State, TrackingFilter
+from services.fusion.init import initial_rotation, shaft_from_tilt
+from services.fusion.params import SENSORS, Params, mode_name
+from services.fusion.sample import StateSample, make_sample
+from tiplog.calibration import Calibration
+
+ALL = SENSORS
+KIND_ORDER = {"gyro": 0, "accel": 1, "tof": 2, "vision": 3}
+TOF_VALID = 1
+__all__ = ["ALL", "FusionRunner", "StateSample"]
+
+
+def _v3(v: Any) -> np.ndarray:
+    return np.array([v.x, v.y, v.z], dtype=float)
+
+
+class _Track:
+    """What a rewind restores: the filter state (None before initialisation) and the latest
+    accelerometer sample (for initialising roll)."""
+
+    __slots__ = ("state", "f_last", "resets", "reset_reasons", "neutral_u")
+
+    def __init__(self) -> None:
+        self.state: State | None = None
+        self.f_last: np.ndarray | None = None
+        self.resets = 0
+        self.reset_reasons: dict[str, int] = {}
+        self.neutral_u: np.ndarray | None = None
+
+    def copy(self) -> _Track:
+        t = _Track.__new__(_Track)
+        t.state = None if self.state is None else self.state.copy()
+        t.f_last = self.f_last
+        t.resets = self.resets
+        t.reset_reasons = dict(self.reset_reasons)
+        t.neutral_u = self.neutral_u
+        return t
+
+
+class FusionRunner:
+    def __init__(self, calibration: Calibration, params: Params | None = None, sensors: frozenset[str] = ALL):
+        self.calib = calibration
+        self.params = params or Params()
+        self.sensors = frozenset(sensors)
+        self.filt = TrackingFilter(calibration, self.params, self.sensors)
+        p = self.params
+        self.delay_ns = p.output_delay_ns
+        self.history_ns = int(p.history_ms * 1e6)
+        self.max_age_ns = int(p.max_age_ms * 1e6)
+        self.lock_ns = int(p.vision_lock_ms * 1e6)
+        self.lat = {k: calibration.latency_ns(k) for k in ("gyro", "accel", "tof", "camera")}
+        self._pending: deque[tuple[int, tuple]] = deque()  # (arrival, event) in feed order
+        self._gyro_due: deque[tuple[int, int, tuple]] = deque()  # (cutoff, t, key) to publish
+        self._ready: list[tuple] = []  # heap of arrived events not yet processed (ahead of head)
+        self._done_keys: list[tuple] = []  # processed events in key order
+        self._done: list[tuple] = []
+        self._snap_keys: list[tuple] = []
+        self._snaps: list[_Track] = []
+        self._track = _Track()
+        self._seq = 0
+        self._last_pub_t = -(1 << 62)
+        self._last_arrival = -(1 << 62)
+        self.stats: dict[str, float] = {"rewinds": 0, "max_rewind_ms": 0.0, "corrupt": 0, "late_gyro": 0}
+        self.dropped: dict[str, int] = {}
+
+    # ------------------------------------------------------------------ input
+    def feed(self, topic: str, msg: Any, arrival_ns: int) -> None:
+        """One message as it arrived (arrival order); unknown topics are ignored."""
+        try:
+            ev = self._event(topic, msg)
+        except (AttributeError, TypeError, ValueError):
+            self.stats["corrupt"] += 1
+            return
+        if ev is None:
+            return
+        arrival_ns = max(int(arrival_ns), self._last_arrival)
+        self._last_arrival = arrival_ns
+        t = ev[0][0]
+        if arrival_ns - t > self.max_age_ns:
+            self._drop(ev[0][1], "too_old")
+            return
+        self._pending.append((arrival_ns, ev))
+        if ev[0][1] == 0:
+            self._gyro_due.append((max(t + self.delay_ns, arrival_ns), t, ev[0]))
+
+    def _drop(self, kind_order: int, reason: str) -> None:
+        name = next(k for k, v in KIND_ORDER.items() if v == kind_order)
+        key = f"{name}:{reason}"
+        self.dropped[key] = self.dropped.get(key, 0) + 1
+
+    def _event(self, topic: str, msg: Any) -> tuple | None:
+        """(key, kind, payload) with key = (t, kind order, seq), or None to ignore."""
+        if topic == "device/gyro":
+            w = _v3(msg.rate_radps)
+            t = msg.header.stamp_ns - self.lat["gyro"]
+            kind, payload = "gyro", w
+        elif topic == "device/accel":
+            if "imu" not in self.sensors:
+                return None
+            kind, payload = "accel", _v3(msg.specific_force_mps2)
+            t = msg.header.stamp_ns - self.lat["accel"]
+        elif topic == "device/tof":
+            if "tof" not in self.sensors:
+                return None
+            rng = float(msg.range_raw_mm)
+            if msg.status != TOF_VALID or not (self.params.tof_min_mm <= rng <= self.params.tof_max_mm):
+                self.dropped["tof:invalid"] = self.dropped.get("tof:invalid", 0) + 1
+                return None
+            kind, payload = "tof", rng * 1e-3
+            t = msg.header.stamp_ns - self.lat["tof"]
+        elif topic == "vision/observation":
+            if "vision" not in self.sensors:
+                return None
+            if not msg.accepted:
+                self.dropped["vision:not_accepted"] = self.dropped.get("vision:not_accepted", 0) + 1
+                return None
+            payload = {
+                "n_left": _v3(msg.n_left),
+                "n_right": _v3(msg.n_right),
+                "junction_visible": bool(msg.junction_visible),
+                "ray": _v3(msg.junction_ray),
+            }
+            kind = "vision"
+            t = msg.header.stamp_ns - self.lat["camera"]
+        else:
+            return None
+        vals = payload if not isinstance(payload, dict) else np.concatenate([payload["n_left"], payload["n_right"]])
+        if not np.all(np.isfinite(vals)):
+            raise ValueError("non-finite value")
+        self._seq += 1
+        return ((int(t), KIND_ORDER[kind], self._seq), kind, payload)
+
+    # ------------------------------------------------------------------ output
+    def advance(self, now_ns: int) -> list[StateSample]:
+        """States at gyro times up to now_ns - output_delay, each exactly once (assumes every
+        message that arrived by now_ns has been fed)."""
+        out: list[StateSample] = []
+        while self._gyro_due and self._gyro_due[0][0] <= now_ns:
+            self._publish_next(out)
+        return out
+
+    def finish(self) -> list[StateSample]:
+        """Offline: every state not yet published, once all inputs have arrived."""
+        out: list[StateSample] = []
+        while self._gyro_due:
+            self._publish_next(out)
+        return out
+
+    def predict(self, now_ns: int) -> StateSample | None:
+        """The newest state carried forward to now_ns at constant velocity and angular rate."""
+        s = self._track.state
+        if s is None:
+            return None
+        s = s.copy()
+        self.filt.propagate(s, int(now_ns))
+        if not s.finite():
+            return None
+        return make_sample(s, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
+
+    def diagnostics(self) -> dict:
+        s = self._track.state
+        counts = s.counts if s is not None else {}
+        nis_sum = s.nis if s is not None else {}
+        updates = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("updates:")}
+        rejected = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("rejected:")}
+        rejected.update(self.dropped)
+        nis = {k: v / max(updates.get(k, 0), 1) for k, v in nis_sum.items()}
+        return {
+            "updates": updates,
+            "rejected": rejected,
+            "nis": nis,
+            "rewinds": int(self.stats["rewinds"]),
+            "max_rewind_ms": float(self.stats["max_rewind_ms"]),
+            "lag_ms": self.params.output_delay_ms,
+            "mode": mode_name(self.sensors),
+            "resets": self._track.resets,
+            "reset_reasons": dict(self._track.reset_reasons),
+            "corrupt": int(self.stats["corrupt"]),
+            "initialised": s is not None,
+            "vision_locked": bool(s is not None and (s.t_ns - s.last_vision_ns) <= self.lock_ns),
+        }
+
+    # ------------------------------------------------------------------ machinery
+    def _neutral(self) -> np.ndarray:
+        n = self._track.neutral_u
+        return n if n is not None else np.array([0.0, 0.0, -1.0])
+
+    def _publish_next(self, out: list[StateSample]) -> None:
+        cutoff, t_k, key_k = self._gyro_due.popleft()
+        while self._pending and self._pending[0][0] <= cutoff:
+            _, ev = self._pending.popleft()
+            if self._done_keys and ev[0] < self._done_keys[-1]:
+                self._rewind_insert(ev)
+            else:
+                heapq.heappush(self._ready, ev)
+        while self._ready and self._ready[0][0] <= key_k:
+            self._process(heapq.heappop(self._ready))
+        if t_k <= self._last_pub_t:
+            self.stats["late_gyro"] += 1
+            return
+        i = bisect.bisect_left(self._snap_keys, key_k)
+        if i == len(self._snap_keys) or self._snap_keys[i] != key_k:
+            return  # gyro dropped (too old)
+        self._last_pub_t = t_k
+        st = self._snaps[i].state
+        if st is not None and st.finite():
+            out.append(make_sample(st, self.calib.rcm_base_m, self._neutral(), self.lock_ns))
+        self._prune(t_k - self.history_ns)
+
+    def _prune(self, t_min: int) -> None:
+        k = bisect.bisect_left(self._snap_keys, (t_min,))
+        if k > 1:
+            k -= 1  # keep one snapshot at or before t_min
+            del self._snap_keys[:k]
+            del self._snaps[:k]
+            j = bisect.bisect_right(self._done_keys, self._snap_keys[0])
+            del self._done_keys[:j]
+            del self._done[:j]
+
+    def _rewind_insert(self, ev: tuple) -> None:
+        key = ev[0]
+        i = bisect.bisect_right(self._snap_keys, key) - 1
+        if i < 0:
+            self._drop(key[1], "older_than_history")
+            return
+        self.stats["rewinds"] += 1
+        self.stats["max_rewind_ms"] = max(self.stats["max_rewind_ms"], (self._done_keys[-1][0] - key[0]) * 1e-6)
+        snap_key = self._snap_keys[i]
+        self._track = self._snaps[i].copy()
+        del self._snap_keys[i + 1 :]
+        del self._snaps[i + 1 :]
+        j = bisect.bisect_right(self._done_keys, snap_key)
+        replay = self._done[j:]
+        del self._done_keys[j:]
+        del self._done[j:]
+        k = bisect.bisect_left([e[0] for e in replay], key)
+        replay.insert(k, ev)
+        for e in replay:
+            self._process(e)
+
+    def _process(self, ev: tuple) -> None:
+        key, kind, payload = ev
+        t = key[0]
+        tr = self._track
+        s = tr.state
+        f = self.filt
+        if kind == "gyro":
+            if s is not None:
+                f.on_gyro(s, t, payload)
+                why = f.diverged(s)
+                if why is not None:
+                    tr.state = None
+                    tr.resets += 1
+                    tr.reset_reasons[why] = tr.reset_reasons.get(why, 0) + 1
+            elif not f.vision and tr.f_last is not None:
+                self._init_without_vision(t)
+        elif kind == "accel":
+            tr.f_last = payload
+            if s is not None:
+                f.on_accel(s, t, payload)
+        elif kind == "tof":
+            if s is not None:
+                f.propagate(s, t)
+                f.update_tof(s, payload)
+        elif kind == "vision":
+            if s is not None:
+                f.propagate(s, t)
+                f.update_vision(s, payload)
+            else:
+                tr.state = f.init_from_vision(t, payload, tr.f_last if f.imu else None)
+                if tr.state is not None and tr.neutral_u is None:
+                    tr.neutral_u = tr.state.R[:, 2].copy()
+        self._done_keys.append(key)
+        self._done.append(ev)
+        if kind == "gyro":
+            self._snap_keys.append(key)
+            self._snaps.append(tr.copy())
+
+    def _init_without_vision(self, t: int) -> None:
+        """Without vision nothing observes heading: start from the accelerometer's inclination
+        with the azimuth of the ToF target plane's normal, at a mid working depth."""
+        tr = self._track
+        c = self.calib
+        u = shaft_from_tilt(tr.f_last, c.R_tool_imu, c.tof_plane_normal_base)
+        R = initial_rotation(u, tr.f_last, c.R_tool_imu)
+        s = self.filt.new_state(t, R, 0.14, tr.f_last)
+        s.P[0:3, 0:3] *= 100.0
+        s.P[6:9, 6:9] *= 25.0
+        tr.state = s
+        if tr.neutral_u is None:
+            tr.neutral_u = u
