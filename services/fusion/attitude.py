@@ -47,8 +47,8 @@ _SQRT2 = math.sqrt(2.0)
 # Layout of the flat state vector the kernel works on.
 _QG, _QA, _LPA, _BIAS, _P = 0, 4, 8, 14, 17  # q_gyr(4) q_acc(4) acc lp(6) bias(3) P(9)
 _LPRG, _GLP, _LPRA, _LPR, _LPB = 26, 32, 35, 41, 59  # rest gyr lp(6) gyr lp out(3) rest acc lp(6) R lp(18) Rb lp(4)
-_REST_T, _REST, _T, _GPREV, _FLAG, _ACC_INIT = 63, 64, 65, 66, 69, 70
-_N_STATE = 71
+_REST_T, _REST, _T, _GPREV, _FLAG, _ACC_INIT, _ACC_T = 63, 64, 65, 66, 69, 70, 71
+_N_STATE = 72
 
 
 @dataclass(frozen=True)
@@ -97,28 +97,38 @@ class Params:
 
 
 @_jit
-def _lp_coeffs(tau: float, dt: float) -> tuple[float, float, float]:
-    """Second-order Butterworth low-pass (cutoff sqrt(2)/(2 pi tau)) for step dt: b0, a1, a2."""
-    fc = _SQRT2 / (2.0 * math.pi * tau)
-    c = math.tan(min(math.pi * fc * dt, 1.4))
-    d = c * c + _SQRT2 * c + 1.0
-    return c * c / d, 2.0 * (c * c - 1.0) / d, (1.0 - _SQRT2 * c + c * c) / d
+def _lp_coeffs(tau: float, dt: float) -> tuple[float, float, float, float, float, float]:
+    """Second-order Butterworth low-pass (natural frequency sqrt(2)/tau) in state-space form
+    (value, rate), discretised by the trapezoid rule for a step dt: stable for any dt, and
+    the steady state of a constant input is (input, 0) whatever dt was, so jittering steps
+    cause no transients. Returns (m11, m12, m21, m22, n1, n2)."""
+    w = _SQRT2 / tau
+    a = 0.5 * dt
+    d = 1.0 + _SQRT2 * w * a + w * w * a * a
+    return (
+        (1.0 + _SQRT2 * w * a - w * w * a * a) / d,
+        2.0 * a / d,
+        -2.0 * w * w * a / d,
+        (1.0 - _SQRT2 * w * a - w * w * a * a) / d,
+        a * w * w * dt / d,
+        w * w * dt / d,
+    )
 
 
 @_jit
-def _lp(x: float, b0: float, a1: float, a2: float, s: np.ndarray, k: int) -> float:
-    """One step of the filter (transposed direct form II) on channel state s[k], s[k + 1]."""
-    y = b0 * x + s[k]
-    s[k] = 2.0 * b0 * x - a1 * y + s[k + 1]
-    s[k + 1] = b0 * x - a2 * y
+def _lp(x: float, c: tuple[float, float, float, float, float, float], s: np.ndarray, k: int) -> float:
+    """One step of the low-pass on channel state s[k] (value), s[k + 1] (rate); returns the value."""
+    y = c[0] * s[k] + c[1] * s[k + 1] + c[4] * x
+    s[k + 1] = c[2] * s[k] + c[3] * s[k + 1] + c[5] * x
+    s[k] = y
     return y
 
 
 @_jit
-def _lp_init(x: float, b0: float, a2: float, s: np.ndarray, k: int) -> None:
-    """Set channel state s[k], s[k + 1] to the steady state of a constant input x."""
-    s[k] = x - b0 * x
-    s[k + 1] = b0 * x - a2 * x
+def _lp_init(x: float, s: np.ndarray, k: int) -> None:
+    """Channel state s[k], s[k + 1] at rest on a constant input x."""
+    s[k] = x
+    s[k + 1] = 0.0
 
 
 @_jit
@@ -191,11 +201,11 @@ def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st:
                 st[_GPREV + k] = gyr[i, k]
             # rest detection, gyroscope part
             if dt > 0.0:
-                rb0, ra1, ra2 = _lp_coeffs(tau_rest, dt)
+                cr = _lp_coeffs(tau_rest, dt)
                 dev = 0.0
                 big = False
                 for k in range(3):
-                    y = _lp(gyr[i, k], rb0, ra1, ra2, st, _LPRG + 2 * k)
+                    y = _lp(gyr[i, k], cr, st, _LPRG + 2 * k)
                     st[_GLP + k] = y
                     dev += (gyr[i, k] - y) ** 2
                     big = big or abs(y) > clip
@@ -203,9 +213,8 @@ def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st:
                     st[_REST_T] = 0.0
                     st[_REST] = 0.0
             else:
-                rb0, ra1, ra2 = _lp_coeffs(tau_rest, 0.005)
                 for k in range(3):
-                    _lp_init(gyr[i, k], rb0, ra2, st, _LPRG + 2 * k)
+                    _lp_init(gyr[i, k], st, _LPRG + 2 * k)
                     st[_GLP + k] = gyr[i, k]
         if a_ok:
             _acc_step(acc[i], dt, st, tau_acc, tau_rest, th_a, rest_min, p0, v_rate, clip, mot_sig, vert_f, rest_sig,
@@ -239,16 +248,16 @@ def _acc_step(
     bias update (see the module docstring)."""
     init = st[_ACC_INIT] == 0.0 or dt <= 0.0
     step = dt if dt > 0.0 else 0.005
-    b0, a1, a2 = _lp_coeffs(tau_acc, step)
-    rb0, ra1, ra2 = _lp_coeffs(tau_rest, step)
+    ca = _lp_coeffs(tau_acc, step)
+    cr = _lp_coeffs(tau_rest, step)
     # rest detection, accelerometer part
     if init:
         for k in range(3):
-            _lp_init(a[k], rb0, ra2, st, _LPRA + 2 * k)
+            _lp_init(a[k], st, _LPRA + 2 * k)
     else:
         dev = 0.0
         for k in range(3):
-            dev += (a[k] - _lp(a[k], rb0, ra1, ra2, st, _LPRA + 2 * k)) ** 2
+            dev += (a[k] - _lp(a[k], cr, st, _LPRA + 2 * k)) ** 2
         if dev >= th_a * th_a:
             st[_REST_T] = 0.0
             st[_REST] = 0.0
@@ -261,10 +270,10 @@ def _acc_step(
     for k in range(3):
         x = R[3 * k] * a[0] + R[3 * k + 1] * a[1] + R[3 * k + 2] * a[2]
         if init:
-            _lp_init(x, b0, a2, st, _LPA + 2 * k)
+            _lp_init(x, st, _LPA + 2 * k)
             e[k] = x
         else:
-            e[k] = _lp(x, b0, a1, a2, st, _LPA + 2 * k)
+            e[k] = _lp(x, ca, st, _LPA + 2 * k)
     # into the earth frame, normalised; correction about horizontal axes onto +z
     _qmat(st[_QA : _QA + 4], R)
     ex = R[0] * e[0] + R[1] * e[1] + R[2] * e[2]
@@ -291,16 +300,18 @@ def _acc_step(
     rb1_ = R[3] * bx + R[4] * by + R[5] * bz
     for k in range(9):
         if init:
-            _lp_init(R[k], b0, a2, st, _LPR + 2 * k)
+            _lp_init(R[k], st, _LPR + 2 * k)
         else:
-            R[k] = _lp(R[k], b0, a1, a2, st, _LPR + 2 * k)
+            R[k] = _lp(R[k], ca, st, _LPR + 2 * k)
     if init:
-        _lp_init(rb0_, b0, a2, st, _LPB)
-        _lp_init(rb1_, b0, a2, st, _LPB + 2)
+        _lp_init(rb0_, st, _LPB)
+        _lp_init(rb1_, st, _LPB + 2)
         st[_ACC_INIT] = 1.0
+        st[_ACC_T] = 0.0
         return
-    rb0_ = _lp(rb0_, b0, a1, a2, st, _LPB)
-    rb1_ = _lp(rb1_, b0, a1, a2, st, _LPB + 2)
+    rb0_ = _lp(rb0_, ca, st, _LPB)
+    rb1_ = _lp(rb1_, ca, st, _LPB + 2)
+    st[_ACC_T] += dt
     # variances in (deg/s)^2; W chosen so the steady-state sigma is the parameter's
     v = v_rate * dt
     for k in range(3):
@@ -313,6 +324,8 @@ def _acc_step(
                 H[k, j] = 1.0 if k == j else 0.0
         pr = rest_sig * rest_sig
         w0 = w1 = w2 = pr * pr / v + pr
+    elif st[_ACC_T] < 2.0 * tau_acc:  # the inclination is still settling from its start
+        return
     else:
         e[0] = -ey / dt + rb0_ - (R[0] * bx + R[1] * by + R[2] * bz)
         e[1] = ex / dt + rb1_ - (R[3] * bx + R[4] * by + R[5] * bz)
