@@ -30,6 +30,10 @@ TOPICS: dict[str, type[Message]] = {
     "vision/preview": CompressedImage_pb2.CompressedImage,
     "fusion/state": fusion_pb2.FusionState,
     "fusion/diagnostics": fusion_pb2.FusionDiagnostics,
+    # Forward prediction of the newest state to the present, for display (not for archives).
+    "fusion/predicted": fusion_pb2.FusionState,
+    # The estimated tool pose (base -> tool_estimate) for Foxglove's 3D panel beside bench/tf.
+    "fusion/tf": FrameTransforms_pb2.FrameTransforms,
     "bench/robot": robot_pb2.RobotState,
     "bench/tf": FrameTransforms_pb2.FrameTransforms,
     "recorder/status": recorder_pb2.RecorderStatus,
