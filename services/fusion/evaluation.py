@@ -1,0 +1,190 @@
+"""Scoring an estimate against the bench's ground truth (evaluation only: the estimator never
+sees any of this).
+
+Continuous blocks (programmed sweeps, teleoperated, demo), as the paper scores them: the
+absolute tip error at every estimated (IMU) sample in the robot base frame, no alignment, the
+first 20 % of each block excluded; RMSE, median, p95, and the RMSE of the radial part (along
+the true shaft, i.e. depth) and the tangential part (normal to it); per block and pooled.
+Other protocols (translation, rotation, static holds) register their own scorer in
+`SCORERS` under their protocol name and reuse `load_truth` / `load_estimate`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tiplog.mcap_io import read_messages, read_metadata
+
+CONTINUOUS_KINDS = ("sweep", "teleop", "demo")
+EXCLUDE_FRACTION = 0.2
+
+
+class EvaluationError(ValueError):
+    """A session or estimate that cannot be scored; the message says why."""
+
+
+@dataclass
+class Truth:
+    t_ns: np.ndarray  # (n,)
+    tip_base_m: np.ndarray  # (n, 3)
+    rcm_base_m: np.ndarray  # (n, 3)
+    trials: list[dict[str, Any]]
+    protocol: str
+
+
+@dataclass
+class Estimate:
+    t_ns: np.ndarray
+    tip_base_m: np.ndarray
+
+
+def load_truth(session: str | Path) -> Truth:
+    md = read_metadata(session)
+    if "trials" not in md:
+        raise EvaluationError(f"{session}: no 'trials' metadata (not a bench session with ground truth)")
+    trials = json.loads(md["trials"]["json"])
+    protocol = md.get("session", {}).get("protocol", "")
+    t, tip, rcm = [], [], []
+    for rec in read_messages(session, ["bench/robot"]):
+        m = rec.message
+        t.append(m.header.stamp_ns)
+        tip.append((m.tip_m.x, m.tip_m.y, m.tip_m.z))
+        rcm.append((m.rcm_m.x, m.rcm_m.y, m.rcm_m.z))
+    if len(t) < 2:
+        raise EvaluationError(f"{session}: no ground truth (topic bench/robot)")
+    return Truth(np.asarray(t, np.int64), np.asarray(tip), np.asarray(rcm), trials, protocol)
+
+
+def load_estimate(path: str | Path, topic: str = "fusion/state") -> Estimate:
+    t, tip = [], []
+    for rec in read_messages(path, [topic]):
+        m = rec.message
+        t.append(m.header.stamp_ns)
+        tip.append((m.tip_m.x, m.tip_m.y, m.tip_m.z))
+    if not t:
+        raise EvaluationError(f"{path}: no estimate (topic {topic})")
+    order = np.argsort(np.asarray(t), kind="stable")
+    return Estimate(np.asarray(t, np.int64)[order], np.asarray(tip)[order])
+
+
+def _interp(tq: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.stack([np.interp(tq, t, y[:, j]) for j in range(y.shape[1])], 1)
+
+
+def error_stats(err_m: np.ndarray, radial_m: np.ndarray) -> dict[str, float]:
+    """Tip error vectors (n, 3) [m] and their radial parts (n,) [m] -> figures in mm."""
+    e = np.linalg.norm(err_m, axis=1) * 1e3
+    rad = radial_m * 1e3
+    tan = np.sqrt(np.maximum(e**2 - rad**2, 0.0))
+    if len(e) == 0:
+        return {k: float("nan") for k in _KEYS} | {"samples": 0}
+    return {
+        "tip_rmse_mm": float(np.sqrt(np.mean(e**2))),
+        "tip_median_mm": float(np.median(e)),
+        "tip_p95_mm": float(np.percentile(e, 95)),
+        "radial_rmse_mm": float(np.sqrt(np.mean(rad**2))),
+        "tangential_rmse_mm": float(np.sqrt(np.mean(tan**2))),
+        "samples": int(len(e)),
+    }
+
+
+_KEYS = ("tip_rmse_mm", "tip_median_mm", "tip_p95_mm", "radial_rmse_mm", "tangential_rmse_mm")
+
+
+def block_windows(trials: list[dict[str, Any]]) -> list[tuple[str, int, int]]:
+    """(name, start_ns, end_ns) of every continuous block, its first 20 % excluded."""
+    out = []
+    for tr in trials:
+        kind = str(tr.get("kind", ""))
+        if not kind.startswith(CONTINUOUS_KINDS):
+            continue
+        a, b = int(tr["move_start"]) * 1_000_000, int(tr["move_end"]) * 1_000_000
+        if b <= a:
+            continue
+        out.append((kind, a + int(EXCLUDE_FRACTION * (b - a)), b))
+    return out
+
+
+def score_continuous(truth: Truth, est: Estimate) -> dict[str, Any]:
+    """Per block and pooled tip error of `est` against `truth` (see the module docstring)."""
+    windows = block_windows(truth.trials)
+    if not windows:
+        raise EvaluationError("no continuous blocks (sweeps, teleop, demo) in this session")
+    lo, hi = truth.t_ns[0], truth.t_ns[-1]
+    blocks, errs, rads, series = [], [], [], []
+    for name, a, b in windows:
+        sel = (est.t_ns >= a) & (est.t_ns <= b) & (est.t_ns >= lo) & (est.t_ns <= hi)
+        t = est.t_ns[sel]
+        p_true = _interp(t, truth.t_ns, truth.tip_base_m)
+        r_true = _interp(t, truth.t_ns, truth.rcm_base_m)
+        u = p_true - r_true
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        e = est.tip_base_m[sel] - p_true
+        radial = (e * u).sum(1)
+        stats = error_stats(e, radial)
+        n_expected = max(int(np.sum((est.t_ns >= a) & (est.t_ns <= b))), 1)
+        stats["coverage"] = float(len(t) / max(n_expected, 1))
+        blocks.append({"name": name, **stats})
+        errs.append(e)
+        rads.append(radial)
+        series.append((name, t, est.tip_base_m[sel], p_true, np.linalg.norm(e, axis=1)))
+    pooled = error_stats(np.concatenate(errs), np.concatenate(rads))
+    return {"protocol": truth.protocol, "pooled": pooled, "blocks": blocks, "_series": series}
+
+
+SCORERS: dict[str, Callable[[Truth, Estimate], dict[str, Any]]] = {
+    "sweeps": score_continuous,
+    "teleop": score_continuous,
+    "demo": score_continuous,
+}
+
+
+def evaluate(session: str | Path, estimate: str | Path) -> dict[str, Any]:
+    truth = load_truth(session)
+    est = load_estimate(estimate)
+    scorer = SCORERS.get(truth.protocol, score_continuous)
+    return scorer(truth, est)
+
+
+def plot(result: dict[str, Any], folder: Path) -> list[Path]:
+    """Per block: tip path (truth and estimate, the two base axes of largest spread) and the
+    error over time, as PNG files in `folder`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = []
+    for name, t, p_est, p_true, e in result["_series"]:
+        if len(t) == 0:
+            continue
+        ax_i = np.argsort(p_true.std(0))[::-1][:2]
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+        a1.plot(p_true[:, ax_i[0]] * 1e3, p_true[:, ax_i[1]] * 1e3, lw=0.8, label="robot")
+        a1.plot(p_est[:, ax_i[0]] * 1e3, p_est[:, ax_i[1]] * 1e3, lw=0.8, label="estimate")
+        a1.set_xlabel(f"base {'xyz'[ax_i[0]]} [mm]")
+        a1.set_ylabel(f"base {'xyz'[ax_i[1]]} [mm]")
+        a1.set_aspect("equal", adjustable="datalim")
+        a1.legend()
+        a1.set_title(f"{name}: tip path")
+        a2.plot((t - t[0]) * 1e-9, e * 1e3, lw=0.6)
+        a2.set_xlabel("time in scored window [s]")
+        a2.set_ylabel("tip error [mm]")
+        a2.set_title(f"RMSE {np.sqrt(np.mean(e**2)) * 1e3:.2f} mm")
+        fig.tight_layout()
+        path = folder / f"{name}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        out.append(path)
+    return out
+
+
+def public(result: dict[str, Any]) -> dict[str, Any]:
+    """The result without private series (what goes into the JSON file)."""
+    return {k: v for k, v in result.items() if not k.startswith("_")}
