@@ -1,0 +1,200 @@
+"""A running system on the simulated bench for the dashboard's end-to-end tests.
+
+Real processes on a real Zenoh bus: a router held here, `services.bench` (measurement tier,
+device bytes through a pseudo-terminal), `services.sensor_gateway` reading that terminal,
+`services.recorder` and `services.dashboard` with viewer and operator tokens in its
+environment. The fusion state comes from `services.fusion` when `real_fusion` is asked for
+(once the live filter has landed); otherwise `StatePublisher`, a test stand-in that turns
+each bench/robot sample into a FusionState and remembers every one it published.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+import yaml
+
+from tests.conftest import ROOT, free_port
+from tiplog.bus import Bus, BusConfig, SampleInfo
+from tiplog.clock import now_ns
+from tiplog.v1 import fusion_pb2, robot_pb2
+
+VIEWER_TOKEN = "viewer-token-0123456789abcdef"
+OPERATOR_TOKEN = "operator-token-0123456789abcdef"
+
+
+class StatePublisher:
+    """Publishes one FusionState per bench/robot sample: the robot's tip offset by a known
+    deterministic wobble (so the error panel has something to show), depth + 0.5 mm, the
+    tilt from the first shaft direction seen, a fixed ToF offset and a lock that toggles
+    every 2 s. `pause()` stops publishing; `published` lists them in order."""
+
+    def __init__(self, bus: Bus):
+        self.bus = bus
+        self.pub = bus.publisher("fusion/state")
+        self.published: list[fusion_pb2.FusionState] = []
+        self.last: fusion_pb2.FusionState | None = None
+        self.running = threading.Event()
+        self.running.set()
+        self._u0: np.ndarray | None = None
+        self._lock = threading.Lock()
+        bus.subscribe("bench/robot", self._on_robot)
+
+    def pause(self) -> fusion_pb2.FusionState | None:
+        """Stop publishing; returns the last state published."""
+        with self._lock:
+            self.running.clear()
+            return self.last
+
+    def resume(self) -> None:
+        self.running.set()
+
+    def _on_robot(self, msg: robot_pb2.RobotState, _info: SampleInfo) -> None:
+        tip = np.array([msg.tip_m.x, msg.tip_m.y, msg.tip_m.z])
+        rcm = np.array([msg.rcm_m.x, msg.rcm_m.y, msg.rcm_m.z])
+        u = (tip - rcm) / max(np.linalg.norm(tip - rcm), 1e-9)
+        if self._u0 is None:
+            self._u0 = u
+        t_s = msg.header.stamp_ns / 1e9
+        wobble_m = 1e-3 * np.array([np.sin(2.0 * t_s), np.cos(1.3 * t_s), 0.5 * np.sin(0.7 * t_s)])
+        st = fusion_pb2.FusionState(
+            depth_mm=msg.depth_mm + 0.5,
+            tilt_deg=float(np.degrees(np.arccos(np.clip(u @ self._u0, -1.0, 1.0)))),
+            roll_deg=12.5,
+            tof_offset_mm=1.25,
+            vision_locked=int(t_s / 2.0) % 2 == 0,
+            attitude_sigma_deg=0.3,
+        )
+        st.header.stamp_ns = msg.header.stamp_ns
+        st.header.frame_id = "base"
+        st.tip_m.x, st.tip_m.y, st.tip_m.z = (tip + wobble_m).tolist()
+        st.shaft_direction.x, st.shaft_direction.y, st.shaft_direction.z = u.tolist()
+        st.tip_sigma_mm.x = st.tip_sigma_mm.y = st.tip_sigma_mm.z = 0.8
+        st.lag_ms = (now_ns() - msg.header.stamp_ns) / 1e6
+        with self._lock:
+            if not self.running.is_set():
+                return
+            self.pub.put(st)
+            self.published.append(st)
+            self.last = st
+
+
+@dataclass
+class LiveSystem:
+    url: str
+    router: Bus
+    bus: Bus  # a client session for the test itself
+    tmp: Path
+    procs: dict[str, subprocess.Popen] = field(default_factory=dict)
+    fusion: StatePublisher | None = None
+    logs: dict[str, Path] = field(default_factory=dict)
+
+    def client(self, token: str | None) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        return httpx.Client(base_url=self.url, headers=headers, timeout=10.0)
+
+    def log_tail(self, name: str, n: int = 20) -> str:
+        p = self.logs.get(name)
+        return "\n".join(p.read_text(errors="replace").splitlines()[-n:]) if p and p.exists() else ""
+
+    def stop(self) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.terminate()
+        for p in self.procs.values():
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        self.bus.close()
+        self.router.close()
+
+
+def start_system(tmp: Path, *, real_fusion: bool = False, duration_s: float = 20.0, seed: int = 1) -> LiveSystem:
+    """Start everything and wait until the dashboard has states, the reference and a recorder."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    prefix = f"d{free_port()}/"
+    device = tmp / "device"
+    port = free_port()
+    config = {
+        "bench": {
+            "scenario": "demo",
+            "camera_tier": "measurement",
+            "device_link": str(device),
+            "duration_s": duration_s,
+            "seed": seed,
+        },
+        "sensor_gateway": {"port": str(device), "camera": {"kind": "none"}},
+        "recorder": {"out_dir": str(tmp / "rec"), "autostart": "never", "min_free_bytes": 0, "status_period_s": 0.5},
+        "dashboard": {"port": port},
+    }
+    cfg_path = tmp / "system.yaml"
+    cfg_path.write_text(yaml.safe_dump(config))
+    router = Bus(BusConfig(mode="router", listen=[endpoint], connect=[], prefix=prefix), service="up")
+    client_bus = Bus(BusConfig(connect=[endpoint], prefix=prefix))
+    system = LiveSystem(f"http://127.0.0.1:{port}", router, client_bus, tmp)
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        "TIPLOG_DASHBOARD_VIEWER_TOKEN": VIEWER_TOKEN,
+        "TIPLOG_DASHBOARD_OPERATOR_TOKEN": OPERATOR_TOKEN,
+        "OMP_NUM_THREADS": "1",
+    }
+    names = ["bench", "sensor_gateway", "recorder", "dashboard"] + (["fusion"] if real_fusion else [])
+    try:
+        for name in names:
+            log = tmp / f"{name}.log"
+            system.logs[name] = log
+            system.procs[name] = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    f"services.{name}",
+                    "-c",
+                    str(cfg_path),
+                    "--connect",
+                    endpoint,
+                    "--prefix",
+                    prefix,
+                ],
+                cwd=ROOT,
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=log.open("w"),
+            )
+        if not real_fusion:
+            system.fusion = StatePublisher(client_bus)
+        _wait_ready(system)
+    except BaseException:
+        system.stop()
+        raise
+    return system
+
+
+def _wait_ready(system: LiveSystem, timeout_s: float = 120.0) -> None:
+    """Until /api/status shows fusion states, the robot and a recorder status."""
+    deadline = time.monotonic() + timeout_s
+    last = "no answer"
+    with system.client(VIEWER_TOKEN) as c:
+        while time.monotonic() < deadline:
+            for name, p in system.procs.items():
+                if p.poll() is not None:
+                    raise RuntimeError(f"{name} exited with {p.returncode}:\n{system.log_tail(name)}")
+            try:
+                st = c.get("/api/status").json()
+                state = c.get("/api/state").json()
+                if state["received"] > 50 and st["robot"] and st["recorder"]:
+                    return
+                last = f"states {state['received']}, robot {bool(st['robot'])}, recorder {bool(st['recorder'])}"
+            except (httpx.HTTPError, ValueError, KeyError) as e:
+                last = repr(e)
+            time.sleep(0.25)  # polling a starting system; nothing to wait on but its answers
+    raise TimeoutError(f"system not ready in {timeout_s} s ({last})")

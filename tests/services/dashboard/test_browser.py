@@ -1,0 +1,225 @@
+"""The dashboard in real headless Chromium (Debian's, driven by Playwright) against a running
+system on the simulated bench: sign-in, the numbers against the published state, the trail
+growing with no state dropped, recorder controls by role, a screenshot, reconnection."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT
+from tests.services.dashboard.live_system import OPERATOR_TOKEN, VIEWER_TOKEN, LiveSystem, start_system
+from tiplog.mcap_io import read_metadata
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+CHROMIUM = "/usr/bin/chromium"
+
+
+@pytest.fixture(scope="module")
+def system(tmp_path_factory) -> LiveSystem:
+    s = start_system(tmp_path_factory.mktemp("system"))
+    yield s
+    s.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not Path(CHROMIUM).exists():
+        pytest.skip(f"{CHROMIUM} missing (make browser installs Debian's chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def artifacts(tmp_path_factory) -> Path:
+    out = Path(os.environ.get("TIPLOG_TEST_ARTIFACTS", tmp_path_factory.mktemp("artifacts")))
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def signed_in(browser, system: LiveSystem, token: str):
+    """A page signed in through the login form with `token`, its trail flowing."""
+    # bypass_csp: Playwright's own waits evaluate strings, which the page's policy forbids.
+    ctx = browser.new_context(viewport={"width": 1440, "height": 1000}, bypass_csp=True)
+    page = ctx.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    resp = page.goto(system.url)
+    assert resp.status == 401  # the login form, nothing else
+    page.fill("#token", token)
+    page.click("#sign-in")
+    page.wait_for_function("window.tiplog && window.tiplog.est && window.tiplog.est.n > 100", timeout=30_000)
+    page.errors = errors
+    return ctx, page
+
+
+def test_numbers_match_the_published_state_and_screenshot(browser, system, artifacts):
+    ctx, page = signed_in(browser, system, OPERATOR_TOKEN)
+    try:
+        assert page.text_content("#role") == "operator"
+        last = system.fusion.pause()
+        try:
+            page.wait_for_function(
+                "s => window.tiplog.current && window.tiplog.current.state.header.stamp_ns === s",
+                arg=last.header.stamp_ns,
+                timeout=15_000,
+            )
+            page.wait_for_function(
+                "d => document.getElementById('v-depth').textContent === d", arg=f"{last.depth_mm:.2f}", timeout=5_000
+            )
+            shown = {
+                k: page.text_content(f"#{k}")
+                for k in ("v-depth", "v-tilt", "v-roll", "v-tof-offset", "v-tip", "v-fusion-lag")
+            }
+            tip_mm = [last.tip_m.x * 1e3, last.tip_m.y * 1e3, last.tip_m.z * 1e3]
+            assert shown == {
+                "v-depth": f"{last.depth_mm:.2f}",
+                "v-tilt": f"{last.tilt_deg:.2f}",
+                "v-roll": "12.50",
+                "v-tof-offset": "1.25",
+                "v-tip": " / ".join(f"{v:.2f}" for v in tip_mm),
+                "v-fusion-lag": f"{last.lag_ms:.1f}",
+            }
+            assert page.text_content("#lock") == ("vision: locked" if last.vision_locked else "vision: no lock")
+            # The error panel against the robot: the stand-in's wobble is at most ~1.5 mm.
+            err = float(page.text_content("#e-now"))
+            assert 0.0 <= err < 1.6
+            # None dropped: every state published since the first one the page holds reached it
+            # (the dashboard may have joined the bus after the stand-in's first states).
+            first_ns = page.evaluate("window.tiplog.hello.t0_ns + window.tiplog.est.get(0, 0) * 1e6")
+            expected = sum(1 for m in system.fusion.published if m.header.stamp_ns >= first_ns - 1_000)
+            assert page.evaluate("[window.tiplog.received, window.tiplog.est.n, window.tiplog.skipped]") == [
+                expected,
+                expected,
+                0,
+            ]
+        finally:
+            system.fusion.resume()
+        page.wait_for_function("() => document.querySelector('#health tbody tr') !== null", timeout=5_000)
+        health = dict(
+            zip(
+                page.locator("#health tbody td:nth-child(1)").all_text_contents(),
+                page.locator("#health tbody td:nth-child(2)").all_text_contents(),
+                strict=True,
+            )
+        )
+        assert health["bench"] == "up" and health["sensor_gateway"] == "up" and health["recorder"] == "up"
+        assert health["vision"] == "down"  # not started in this system
+        page.screenshot(path=str(artifacts / "dashboard.png"), full_page=True)
+        assert (artifacts / "dashboard.png").stat().st_size > 20_000
+        assert page.errors == []
+    finally:
+        ctx.close()
+
+
+def test_trail_grows(browser, system):
+    ctx, page = signed_in(browser, system, VIEWER_TOKEN)
+    try:
+        n0 = page.evaluate("window.tiplog.est.n")
+        page.wait_for_function("n => window.tiplog.est.n >= n + 200", arg=n0, timeout=15_000)
+        span_s = float(page.text_content("#trail-span"))
+        assert span_s > 0.5
+    finally:
+        ctx.close()
+
+
+def test_recorder_controls_with_operator_token(browser, system):
+    ctx, page = signed_in(browser, system, OPERATOR_TOKEN)
+    try:
+        page.click("#rec-start")
+        page.wait_for_function("document.getElementById('rec-state').textContent === 'recording'", timeout=15_000)
+        page.fill("#mark-label", "first incision")
+        page.click("#rec-mark")
+        page.wait_for_function(
+            "document.getElementById('rec-result').textContent.startsWith('mark: ok')", timeout=10_000
+        )
+        path = page.text_content("#rec-file")
+        page.click("#rec-stop")
+        page.wait_for_function("document.getElementById('rec-state').textContent === 'idle'", timeout=15_000)
+    finally:
+        ctx.close()
+    labels = {m.get("label", "") for name, m in read_metadata(path).items() if name.startswith("event_")}
+    assert "first incision" in labels
+    assert any(lb.startswith("dashboard: start by operator") for lb in labels)
+    assert any(lb.startswith("dashboard: stop by operator") for lb in labels)
+    assert "operator action: start recording" in system.log_tail("dashboard", 200)
+
+
+def test_viewer_token_cannot_start_a_recording(browser, system):
+    ctx, page = signed_in(browser, system, VIEWER_TOKEN)
+    try:
+        assert page.text_content("#role") == "viewer"
+        assert page.is_disabled("#rec-start") and page.is_disabled("#rec-stop")
+        status = page.evaluate(
+            """async () => (await fetch('/api/recorder/start', {method: 'POST',
+                headers: {'Content-Type': 'application/json'}, body: '{}'})).status"""
+        )
+        assert status == 403
+    finally:
+        ctx.close()
+    with system.client(VIEWER_TOKEN) as c:
+        assert c.get("/api/recorder").json()["status"]["state"] != "RECORDER_STATE_RECORDING"
+
+
+def test_without_a_token_everything_is_refused(browser, system):
+    ctx = browser.new_context(bypass_csp=True)
+    try:
+        page = ctx.new_page()
+        resp = page.goto(system.url)
+        assert resp.status == 401
+        assert "script-src 'self'" in resp.headers["content-security-policy"]
+        assert page.locator("#token").count() == 1
+        got = page.evaluate(
+            """async () => {
+                const api = (await fetch('/api/state')).status;
+                const rec = (await fetch('/api/recorder/start', {method: 'POST', body: '{}',
+                    headers: {'Content-Type': 'application/json'}})).status;
+                const ws = await new Promise((done) => {
+                    const s = new WebSocket(`ws://${location.host}/ws`);
+                    s.onopen = () => done('opened');
+                    s.onclose = () => done('closed');
+                });
+                return [api, rec, ws];
+            }"""
+        )
+        assert got == [401, 401, "closed"]
+        page.fill("#token", "not-a-valid-token-at-all")
+        page.click("#sign-in")
+        assert "not valid" in page.text_content("body")
+    finally:
+        ctx.close()
+
+
+def test_page_reconnects_after_the_dashboard_restarts(browser, system):
+    ctx, page = signed_in(browser, system, VIEWER_TOKEN)
+    try:
+        old = system.procs["dashboard"]
+        old.terminate()
+        assert old.wait(10) == 0
+        page.wait_for_function("document.getElementById('conn').textContent === 'reconnecting'", timeout=10_000)
+        system.procs["dashboard"] = subprocess.Popen(
+            old.args, cwd=ROOT, env={**os.environ, **_dashboard_env()}, stderr=subprocess.DEVNULL
+        )
+        page.wait_for_function("document.getElementById('conn').textContent === 'connected'", timeout=60_000)
+        page.wait_for_function("window.tiplog.est.n > 50", timeout=30_000)
+    finally:
+        ctx.close()
+
+
+def _dashboard_env() -> dict[str, str]:
+    return {
+        "PYTHONPATH": str(ROOT),
+        "TIPLOG_DASHBOARD_VIEWER_TOKEN": VIEWER_TOKEN,
+        "TIPLOG_DASHBOARD_OPERATOR_TOKEN": OPERATOR_TOKEN,
+    }
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(pytest.main([__file__, "-q"]))
