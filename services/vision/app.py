@@ -1,12 +1,29 @@
-"""`python -m services.vision`: joins the bus and declares its liveliness token; its own work
-lands with its issue."""
+"""`python -m services.vision`: camera/image (+ camera/info) in, vision/observation and a
+throttled vision/preview out.
+
+The service always works on the newest frame: a frame that arrives while another is being
+processed replaces the one waiting, and the replaced (stale) frame is dropped and counted rather
+than queued, so the observations never fall behind the camera. A frame of the wrong size or
+encoding, or one that does not decode, is rejected with its reason (an observation with
+accepted = false says so) and counted; the service stays up. The observation's header carries
+the frame's capture stamp unchanged, so a vision service on another machine (a client of the
+cart's router: `--mode client -e tcp/CART:7447`) needs no clock synchronisation.
+"""
 
 from __future__ import annotations
 
+import threading
+import time
+from collections import Counter
 from collections.abc import Sequence
 
+from pydantic import Field
+
+from services.vision import DEFAULT_WEIGHTS
+from services.vision.pipeline import PipelineParams
+from tiplog.clock import now_ns
 from tiplog.config import ServiceConfig
-from tiplog.service import idle_until_stopped, run_service
+from tiplog.service import ServiceContext, run_service
 
 NAME = "vision"
 
@@ -14,6 +31,140 @@ NAME = "vision"
 class VisionConfig(ServiceConfig):
     """Configuration of the vision service (section `vision:` of the YAML file)."""
 
+    weights: str = Field("", description="network checkpoint; empty: the one shipped in models/")
+    device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
+    torch_threads: int = Field(1, ge=0, le=64, description="CPU threads for the network (0: torch's default)")
+    calibration: str = Field("", description="calibration YAML giving the shaft radius; empty: shaft_radius_m")
+    shaft_radius_m: float = Field(0.00259, gt=0.0005, lt=0.01)
+    pipeline: PipelineParams = Field(default_factory=PipelineParams)
+    preview_hz: float = Field(3.0, ge=0.0, le=15.0, description="vision/preview at most this often (0: off)")
+    preview_width_px: int = Field(320, ge=64, le=1280)
+
+
+class NewestFrame:
+    """A one-place mailbox: `put` replaces what waits (counting it as dropped), `take` empties it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._item: object | None = None
+        self._event = threading.Event()
+        self.received = 0
+        self.dropped_stale = 0
+
+    def put(self, item: object) -> None:
+        with self._lock:
+            self.received += 1
+            if self._item is not None:
+                self.dropped_stale += 1
+            self._item = item
+            self._event.set()
+
+    def take(self, timeout_s: float) -> object | None:
+        if not self._event.wait(timeout_s):
+            return None
+        with self._lock:
+            item, self._item = self._item, None
+            self._event.clear()
+        return item
+
+
+def _load(cfg: VisionConfig, log):
+    """(Pipeline, shaft radius) from the configuration; SystemExit(2) with one log line on error."""
+    import torch
+
+    from services.vision.network import load_checkpoint
+    from services.vision.pipeline import Pipeline
+    from tiplog.calibration import Calibration, CalibrationError
+
+    if cfg.torch_threads:
+        torch.set_num_threads(cfg.torch_threads)
+    rho = cfg.shaft_radius_m
+    try:
+        if cfg.calibration:
+            rho = Calibration.load_yaml(cfg.calibration).shaft_radius_m
+        seg, extra = load_checkpoint(cfg.weights or DEFAULT_WEIGHTS, cfg.device)
+    except (CalibrationError, ValueError) as e:
+        log.error("%s", e)
+        raise SystemExit(2) from None
+    log.info("network on %s (%s); shaft radius %.3f mm", seg.device, cfg.weights or DEFAULT_WEIGHTS, rho * 1e3)
+    return Pipeline(seg, rho, cfg.pipeline)
+
+
+def body(ctx: ServiceContext[VisionConfig]) -> None:
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+    from services.vision.frames import FrameError, decode_frame
+    from services.vision.preview import preview_message
+    from tiplog.camera_model import CameraModel
+    from tiplog.v1 import vision_pb2
+
+    cfg, log = ctx.config, ctx.log
+    pipeline = _load(cfg, log)
+    camera: list[CameraModel] = []
+    rejected: Counter[str] = Counter()
+    counts = {"processed": 0, "accepted": 0}
+
+    def on_info(msg, _info) -> None:
+        try:
+            cam = CameraModel.from_calibration(msg)
+        except ValueError as e:
+            rejected["bad_camera_info"] += 1
+            log.warning("camera/info rejected: %s", e)
+            return
+        if not camera or camera[0] != cam:
+            log.info("camera %dx%d fx=%.1f", cam.width, cam.height, cam.fx)
+            camera[:] = [cam]
+
+    slot = NewestFrame()
+    pub_obs = ctx.bus.publisher("vision/observation")
+    pub_prev = ctx.bus.publisher("vision/preview", reliable=False)
+    ctx.bus.subscribe("camera/info", on_info)
+    sub_img = ctx.bus.subscribe("camera/image", lambda m, i: slot.put((m, i)), msg_type=RawImage)
+    next_status = time.monotonic() + cfg.status_period_s
+    last_preview = 0.0
+    while not ctx.stop.is_set():
+        item = slot.take(0.1)
+        if time.monotonic() >= next_status:
+            next_status += cfg.status_period_s
+            log.info(
+                "frames %d, processed %d, accepted %d, dropped stale %d, undecodable %d, rejected %s",
+                slot.received, counts["processed"], counts["accepted"], slot.dropped_stale, sub_img.decode_errors,
+                dict(rejected) or "none",
+            )  # fmt: skip
+        if item is None:
+            continue
+        msg, info = item  # type: ignore[misc]
+        stamp = msg.timestamp.ToNanoseconds()
+        try:
+            if not camera:
+                raise FrameError("no_camera_info", "no camera/info received yet")
+            frame = decode_frame(msg, camera[0])
+        except FrameError as e:
+            rejected[e.reason] += 1
+            if rejected[e.reason] <= 5 or rejected[e.reason] % 100 == 0:
+                log.warning("frame at %d rejected (%d so far): %s", stamp, rejected[e.reason], e)
+            obs = vision_pb2.VisionObservation(accepted=False, reject_reason=f"frame:{e.reason}")
+            obs.header.stamp_ns = stamp
+            obs.header.frame_id = msg.frame_id
+            obs.header.seq = info.seq
+            obs.processed_stamp_ns = now_ns()
+            pub_obs.put(obs)
+            continue
+        res = pipeline.process(frame, camera[0], stamp, info.seq)
+        res.obs.processed_stamp_ns = now_ns()
+        pub_obs.put(res.obs)
+        counts["processed"] += 1
+        counts["accepted"] += int(res.obs.accepted)
+        if not res.obs.accepted:
+            rejected[res.obs.reject_reason] += 1
+        now = time.monotonic()
+        if cfg.preview_hz > 0 and now - last_preview >= 1.0 / cfg.preview_hz:
+            last_preview = now
+            pub_prev.put(preview_message(frame, res, camera[0], cfg.preview_width_px))
+
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_service(NAME, VisionConfig, idle_until_stopped, argv, description=__doc__)
+    try:
+        return run_service(NAME, VisionConfig, body, argv, description=__doc__)
+    except SystemExit as e:
+        return int(e.code or 0)

@@ -10,7 +10,7 @@ from pathlib import Path
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 log = logging.getLogger(__name__)
-DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "models" / "shaft_unet.pt"
+from services.vision import DEFAULT_WEIGHTS
 
 
 def register(p: argparse.ArgumentParser) -> None:

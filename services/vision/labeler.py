@@ -51,6 +51,7 @@ class ShaftLabel:
     junction_visible: bool = False
     direction: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     residual_px: float = float("nan")
+    centre_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # middle of the visible shaft
     edge_points: tuple[np.ndarray, np.ndarray] | None = None
 
     def centre_line(self) -> np.ndarray:
@@ -94,6 +95,10 @@ def lines_from_blob(
     lab = ShaftLabel(True, "", line_lo, line_hi, direction=blob.direction.copy())
     lab.residual_px = float(np.hypot(r_lo, r_hi) / np.sqrt(2.0))
     lab.edge_points = (lo_pts, hi_pts)
+    m = lab.centre_line()
+    mid_t = 0.5 * (blob.t_min + blob.t_max)
+    q = blob.point(mid_t, 0.0)
+    lab.centre_px = q - (m[:2] @ q + m[2]) * m[:2]
     if not blob.distal_at_border:
         j = _junction(img, camera, img_step, img_offset, blob, lab, width, junction_min_step)
         if j is not None:

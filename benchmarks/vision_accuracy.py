@@ -1,0 +1,163 @@
+"""Accuracy of the vision pipeline on pixel-tier bench frames against the bench's truth, set
+beside the measurement tier's error model (services.bench vision_model) on the same motion.
+
+For each seed the scenario is simulated twice with the same seed, so the robot's motion and the
+camera's frame instants are the same: once at the pixel tier (frames rendered and run through
+services.vision.pipeline with the shipped checkpoint) and once at the measurement tier (the
+error model's observations). Both are scored the same way, on what the estimator would use:
+  plane residual  asin(n . u_true) of both tangent-plane normals of accepted frames [deg]
+  junction depth  the observation's junction ray intersected with the true axis, minus the true
+                  junction, along the axis [mm] (accepted frames with a junction)
+  acceptance      frames accepted by the consistency gate / all frames
+  trocar gate     accepted frames whose shaft line (from the two normals) passes within 3.5 mm of
+                  the as-calibrated RCM / all frames
+  outliers        accepted frames with a plane residual above 1 deg / accepted frames
+Truth is read here, by the evaluation, never by the pipeline.
+
+    python -m benchmarks.vision_accuracy --scenario teleop --seeds 1 2 3 --duration 40
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections import Counter
+
+import numpy as np
+
+from services.bench.scenario import load_scenario
+from services.bench.simulation import simulate_session
+from tiplog import vision_geometry as vg
+
+
+def _truth(sim, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(true axis direction u, true junction J) in the camera frame at frame k."""
+    T = sim.frame_pose_cam(k)
+    u = T[:3, 2]
+    return u, T[:3, 3] - sim.truth.junction_proximal_m * u
+
+
+def _rcm_cam(sim) -> np.ndarray:
+    T = sim.calib.T_base_camera
+    return T[:3, :3].T @ (np.asarray(sim.calib.rcm_base_m) - T[:3, 3])
+
+
+def score(rows: list[dict]) -> dict:
+    """Summary of per-frame rows {accepted, n_l, n_r, u, J, ray|None, reason, trocar}."""
+    n = len(rows)
+    acc = [r for r in rows if r["accepted"]]
+    res = np.degrees(np.arcsin(np.clip([[r["n_l"] @ r["u"], r["n_r"] @ r["u"]] for r in acc], -1, 1))).ravel()
+    dep = []
+    for r in acc:
+        if r["ray"] is not None:
+            _, p, _ = vg.ray_axis_intersection(r["ray"], vg.closest_axis_point(r["J"], r["u"]), r["u"])
+            dep.append(float((p - r["J"]) @ r["u"]) * 1e3)
+    dep = np.asarray(dep)
+    out_mask = np.abs(res.reshape(-1, 2)).max(1) > 1.0 if len(acc) else np.zeros(0, bool)
+    inl = res.reshape(-1, 2)[~out_mask].ravel() if len(acc) else res
+    q = lambda a, p: float(np.percentile(a, p)) if len(a) else float("nan")  # noqa: E731
+    return {
+        "frames": n,
+        "acceptance": len(acc) / n if n else float("nan"),
+        "trocar_pass": sum(r["trocar"] for r in acc) / n if n else float("nan"),
+        "outlier_fraction": float(out_mask.mean()) if len(acc) else float("nan"),
+        "plane_residual_rms_deg": float(np.sqrt(np.mean(inl**2))) if len(inl) else float("nan"),
+        "plane_residual_median_abs_deg": q(np.abs(inl), 50),
+        "plane_residual_p95_abs_deg": q(np.abs(inl), 95),
+        "junction_frames": int(len(dep)),
+        "junction_depth_mean_mm": float(dep.mean()) if len(dep) else float("nan"),
+        "junction_depth_rms_mm": float(np.sqrt(np.mean(dep**2))) if len(dep) else float("nan"),
+        "junction_depth_sd_mm": float(dep.std()) if len(dep) else float("nan"),
+        "junction_depth_median_abs_mm": q(np.abs(dep), 50),
+        "reasons": dict(Counter(r["reason"] for r in rows if not r["accepted"]).most_common(8)),
+    }
+
+
+def pixel_rows(sim, weights: str, every: int, timings: list) -> list[dict]:
+    from services.vision.network import load_checkpoint
+    from services.vision.pipeline import Pipeline
+
+    seg, _ = load_checkpoint(weights, "cpu")
+    pipe = Pipeline(seg, sim.calib.shaft_radius_m)
+    cam = sim.scenario.camera.model()
+    rcm, rho = _rcm_cam(sim), sim.calib.shaft_radius_m
+    rows = []
+    for k in range(len(sim.camera_frames.t_true_ns)):
+        img = sim.render_frame(k)  # every frame is rendered: the renderer's generator advances per frame
+        if k % every:
+            continue
+        res = pipe.process(img, cam, int(sim.camera_frames.capture_ns[k]), k)
+        timings.append(res.timings_ms)
+        o = res.obs
+        u, J = _truth(sim, k)
+        n_l = np.array([o.n_left.x, o.n_left.y, o.n_left.z])
+        n_r = np.array([o.n_right.x, o.n_right.y, o.n_right.z])
+        ray = np.array([o.junction_ray.x, o.junction_ray.y, o.junction_ray.z]) if o.junction_visible else None
+        trocar = bool(o.accepted and vg.trocar_gate(n_l, n_r, rho, rcm)[1])
+        rows.append(dict(accepted=o.accepted, n_l=n_l, n_r=n_r, u=u, J=J, ray=ray, reason=o.reject_reason,
+                         trocar=trocar))  # fmt: skip
+    return rows
+
+
+def model_rows(sim, every: int) -> list[dict]:
+    v = sim.vision
+    rcm, rho = _rcm_cam(sim), sim.calib.shaft_radius_m
+    rows = []
+    for k in range(0, len(v), every):
+        u, J = _truth(sim, k)
+        ray = v.junction_ray[k] if v.junction_visible[k] else None
+        ok = bool(v.accepted[k])
+        trocar = bool(ok and vg.trocar_gate(v.n_left[k], v.n_right[k], rho, rcm)[1])
+        rows.append(dict(accepted=ok, n_l=v.n_left[k], n_r=v.n_right[k], u=u, J=J, ray=ray,
+                         reason=v.reject_reason[k], trocar=trocar))  # fmt: skip
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.vision_accuracy", description=__doc__.split("\n")[0])
+    ap.add_argument("--scenario", default="teleop")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--duration", type=float, default=40.0)
+    ap.add_argument("--every", type=int, default=1, help="score every N-th frame")
+    ap.add_argument("--weights", default=None)
+    ap.add_argument("--json", help="write the figures here")
+    a = ap.parse_args(argv)
+    import torch
+
+    from services.vision import DEFAULT_WEIGHTS
+
+    torch.set_num_threads(1)
+    sc = load_scenario(a.scenario)
+    pix_all, mod_all, report = [], [], {}
+    for seed in a.seeds:
+        t0 = time.perf_counter()
+        timings: list = []
+        pix = pixel_rows(simulate_session(sc, seed, "pixel", a.duration), a.weights or str(DEFAULT_WEIGHTS), a.every,
+                         timings)  # fmt: skip
+        mod = model_rows(simulate_session(sc, seed, "measurement", a.duration), a.every)
+        pix_all += pix
+        mod_all += mod
+        report[f"seed{seed}"] = {"pixel": score(pix), "model": score(mod)}
+        print(f"seed {seed}: {len(pix)} frames in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    report["pooled"] = {"pixel": score(pix_all), "model": score(mod_all)}
+    keys = ["acceptance", "trocar_pass", "outlier_fraction", "plane_residual_rms_deg", "plane_residual_median_abs_deg",
+            "plane_residual_p95_abs_deg", "junction_depth_mean_mm", "junction_depth_sd_mm",
+            "junction_depth_median_abs_mm", "junction_frames"]  # fmt: skip
+    print(f"{a.scenario}, seeds {a.seeds}, {a.duration:g} s each, every {a.every} frame(s)")
+    print(f"{'':32s}" + "".join(f"{k:>18s}" for k in report))
+    for tier in ("pixel", "model"):
+        for k in keys:
+            vals = "".join(f"{report[s][tier][k]:18.4f}" for s in report)
+            print(f"{tier + ' ' + k:32s}{vals}")
+    for tier in ("pixel", "model"):
+        print(f"{tier} reject reasons (pooled): {report['pooled'][tier]['reasons']}")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(report, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
