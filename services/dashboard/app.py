@@ -69,7 +69,7 @@ def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Ru
         stale_after_s=config.stale_after_s,
         calibration=calibration,
     )
-    app = create_app(feed, config, tokens, RecorderClient(bus))
+    app = create_app(feed, config, tokens, RecorderClient(bus, config.recorder_timeout_s))
     server = uvicorn.Server(
         uvicorn.Config(app, host=config.host, port=config.port, log_level="warning", access_log=False, lifespan="on")
     )

@@ -32,6 +32,8 @@ class DashboardConfig(ServiceConfig):
     stale_after_s: float = Field(2.0, gt=0.0, le=600.0)
     # Status (health, rates, recorder, diagnostics) pushed to each page this often.
     push_status_period_s: float = Field(0.5, gt=0.0, le=10.0)
+    # How long a recorder command waits for the recorder's reply.
+    recorder_timeout_s: float = Field(3.0, gt=0.0, le=60.0)
     # Calibration file (tiplog.calibration YAML) for drawing vision observations in the base frame.
     calibration_file: str | None = None
     # Foxglove live: serve the bus's topics with their schemas on a Foxglove WebSocket server.

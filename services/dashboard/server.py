@@ -65,6 +65,7 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
         "runs on loopback without tokens.",
         docs_url=None,  # Swagger UI would load from a CDN: the schema is at /openapi.json
         redoc_url=None,
+        openapi_url=None,  # served below, behind the token like everything else
         lifespan=lifespan,
     )
 
@@ -149,6 +150,10 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
         return Response(p[2], media_type=f"image/{p[1]}")
 
     app.include_router(router(recorder, require))
+
+    @app.get("/openapi.json", include_in_schema=False)
+    def openapi(_role: Viewer) -> dict[str, Any]:
+        return app.openapi()
 
     @app.websocket("/ws")
     async def ws(websocket: WebSocket) -> None:

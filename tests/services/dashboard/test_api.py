@@ -1,0 +1,130 @@
+"""The JSON API and the websocket of a dashboard on a real Zenoh session: tokens, the state and
+its error split against the reference, every state delivered in order, the OpenAPI schema."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import connect
+
+from tests.services.dashboard.conftest import OPERATOR, VIEWER, make_robot, make_state
+from tiplog.clock import now_ns
+
+
+@pytest.mark.parametrize(
+    "path", ["/", "/api/state", "/api/health", "/api/status", "/static/dashboard.js", "/openapi.json"]
+)
+def test_no_token_is_401(served, path):
+    with served.client() as c:
+        assert c.get(path).status_code == 401
+    with served.client("wrong-token-but-long-enough") as c:
+        assert c.get(path).status_code == 401
+
+
+def test_viewer_reads_but_cannot_act(served):
+    with served.client(VIEWER) as c:
+        assert c.get("/api/state").status_code == 200
+        assert c.get("/").status_code == 200
+        for action, body in (("start", {}), ("stop", {}), ("mark", {"label": "x"})):
+            assert c.post(f"/api/recorder/{action}", json=body).status_code == 403
+
+
+def test_operator_without_a_recorder_gets_503_not_a_traceback(served):
+    with served.client(OPERATOR) as c:
+        r = c.post("/api/recorder/start", json={"reason": "test"})
+        assert r.status_code == 503 and r.json()["detail"] == "no recorder answered on the bus"
+        assert c.post("/api/recorder/mark", json={"label": "bad\x00label"}).status_code == 422
+        assert c.post("/api/recorder/start", json={"session": "../etc"}).status_code == 422
+
+
+def test_state_and_error_split_against_the_reference(served):
+    robot = served.pub_bus.publisher("bench/robot")
+    fusion = served.pub_bus.publisher("fusion/state")
+    rcm = np.array([0.5, 0.0, 0.3])
+    u = np.array([0.0, 0.6, -0.8])  # reference shaft direction
+    t0 = now_ns()
+    refs_before = served.running.feed.reference.total
+    for k in range(5):  # tip moving along x at 10 mm/s, 5 ms apart
+        tip = rcm + 0.14 * u + np.array([1e-2 * 0.005 * k, 0.0, 0.0])
+        robot.put(make_robot(t0 + k * 5_000_000, tip.tolist(), rcm.tolist()))
+    served.wait_states(refs_before + 5, ring="reference")
+    # state at t0 + 7.5 ms: reference tip interpolated there, plus 2 mm along u and 1 mm across.
+    ref = rcm + 0.14 * u + np.array([1e-2 * 0.0075, 0.0, 0.0])
+    across = np.cross(u, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+    est = ref + 2e-3 * u + 1e-3 * across
+    before = served.running.feed.state.total
+    fusion.put(make_state(t0 + 7_500_000, tip_m=est.tolist(), depth_mm=142.0, tilt_deg=5.5))
+    served.wait_states(before + 1)
+    with served.client(VIEWER) as c:
+        body = c.get("/api/state").json()
+    assert body["state"]["depth_mm"] == 142.0 and body["state"]["tilt_deg"] == 5.5
+    d = body["derived"]
+    assert d["x_mm"] == pytest.approx(est[0] * 1e3, abs=1e-3)
+    assert d["err_radial_mm"] == pytest.approx(2.0, abs=1e-3)
+    assert d["err_tangential_mm"] == pytest.approx(1.0, abs=1e-3)
+    assert d["err_mm"] == pytest.approx(np.sqrt(5.0), abs=1e-3)
+
+
+def test_health_counts_streams_and_gaps(served):
+    pub = served.pub_bus.publisher("fusion/state")
+    before = served.running.feed.state.total
+    for k in range(20):
+        pub.put(make_state(10_000 + k))
+    pub._seq += 5  # five states lost upstream: the dashboard counts them from the sequence numbers
+    pub.put(make_state(20_000))
+    served.wait_states(before + 21)
+    with served.client(VIEWER) as c:
+        h = c.get("/api/health").json()
+    assert h["streams"]["fusion/state"]["dropped"] == 5
+    assert h["services"]["dashboard"]["state"] == "up"
+    assert h["services"]["recorder"]["state"] == "down"
+
+
+def test_websocket_delivers_every_state_in_order(served):
+    pub = served.pub_bus.publisher("fusion/state")
+    url = served.url.replace("http://", "ws://") + "/ws"
+    with pytest.raises(InvalidStatus):
+        connect(url, additional_headers={"Authorization": "Bearer nope-nope-nope-nope"}).close()
+    with connect(url, additional_headers={"Authorization": f"Bearer {VIEWER}"}) as ws:
+        hello = json.loads(ws.recv(timeout=10))
+        assert hello["type"] == "hello" and hello["role"] == "viewer"
+        cols = hello["columns"]["state"]
+        base = served.running.feed.state.total
+        stamps = [hello["t0_ns"] + 1_000_000 * (k + 1) for k in range(300)]
+        for k, t in enumerate(stamps):
+            pub.put(make_state(t, depth_mm=100.0 + k))
+        rows: list[list[float]] = []
+        while len(rows) < base + 300:
+            msg = json.loads(ws.recv(timeout=10))
+            if msg["type"] == "batch":
+                assert msg["skipped"] == 0
+                rows += msg["state"]
+        mine = rows[base:]
+        assert [r[cols.index("depth_mm")] for r in mine] == [100.0 + k for k in range(300)]
+        assert [round(r[0] * 1e6) + hello["t0_ns"] for r in mine] == stamps
+
+
+def test_openapi_documents_the_api(served):
+    with served.client(VIEWER) as c:
+        schema = c.get("/openapi.json").json()
+    paths = schema["paths"]
+    for p in ("/api/state", "/api/health", "/api/recorder/start", "/api/recorder/stop", "/api/recorder/mark"):
+        assert p in paths, p
+    start = paths["/api/recorder/start"]["post"]
+    assert {"401", "403", "503"} <= set(start["responses"])
+    assert "HTTPBearer" in schema["components"]["securitySchemes"]
+
+
+def test_page_scripts_never_write_markup():
+    # Bus data reaches the page only through textContent and canvas: no HTML sinks, no eval.
+    from services.dashboard.server import STATIC
+
+    for js in STATIC.glob("*.js"):
+        text = js.read_text()
+        for sink in ("innerHTML", "outerHTML", "insertAdjacentHTML", "document.write", "eval(", "new Function"):
+            assert sink not in text, f"{js.name} uses {sink}"
+    assert "<script>" not in (STATIC / "index.html").read_text()  # no inline script (CSP forbids it)
