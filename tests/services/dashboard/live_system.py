@@ -136,6 +136,7 @@ def start_system(tmp: Path, *, real_fusion: bool = False, duration_s: float = 20
         "recorder": {"out_dir": str(tmp / "rec"), "autostart": "never", "min_free_bytes": 0, "status_period_s": 0.5},
         "dashboard": {"port": port},
     }
+    config["dashboard"]["calibration_file"] = str(_calibration(tmp, seed))
     cfg_path = tmp / "system.yaml"
     cfg_path.write_text(yaml.safe_dump(config))
     router = Bus(BusConfig(mode="router", listen=[endpoint], connect=[], prefix=prefix), service="up")
@@ -177,6 +178,27 @@ def start_system(tmp: Path, *, real_fusion: bool = False, duration_s: float = 20
         system.stop()
         raise
     return system
+
+
+def _calibration(tmp: Path, seed: int) -> Path:
+    """The session's "as calibrated" constants (never the truth), as a calibration file: a
+    1 s offline session of the same scenario and seed carries the same ones as the live bench."""
+    from tiplog.calibration import Calibration
+    from tiplog.mcap_io import read_metadata
+
+    session = tmp / "calibration-session.mcap"
+    subprocess.run(
+        [sys.executable, "-m", "tiplog.cli", "sim", "generate", "--scenario", "demo", "--duration", "1"]
+        + ["--seed", str(seed), "--out", str(session)],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        check=True,
+        capture_output=True,
+        timeout=120,
+    )
+    out = tmp / "calibration.yaml"
+    Calibration.from_mcap_metadata(read_metadata(session)).save_yaml(out)
+    return out
 
 
 def _wait_ready(system: LiveSystem, timeout_s: float = 120.0) -> None:
