@@ -90,6 +90,13 @@ def _load(cfg: VisionConfig, log):
     return Pipeline(seg, rho, cfg.pipeline)
 
 
+def _load_or_error(cfg: VisionConfig, log):
+    try:
+        return _load(cfg, log)
+    except SystemExit as e:
+        return e
+
+
 def body(ctx: ServiceContext[VisionConfig]) -> None:
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
@@ -99,7 +106,17 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     from tiplog.v1 import vision_pb2
 
     cfg, log = ctx.config, ctx.log
-    pipeline = _load(cfg, log)
+    # torch and the checkpoint take seconds to load: on a thread, so a signal meanwhile still
+    # stops the service at once
+    loaded: list = []
+    loader = threading.Thread(target=lambda: loaded.append(_load_or_error(cfg, log)), name="load", daemon=True)
+    loader.start()
+    while not loaded:
+        if ctx.stop.wait(0.05):
+            return
+    if isinstance(loaded[0], SystemExit):
+        raise loaded[0]
+    pipeline = loaded[0]
     camera: list[CameraModel] = []
     rejected: Counter[str] = Counter()
     counts = {"processed": 0, "accepted": 0}

@@ -7,10 +7,10 @@ import logging
 import sys
 from pathlib import Path
 
+from services.vision import DEFAULT_WEIGHTS
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 log = logging.getLogger(__name__)
-from services.vision import DEFAULT_WEIGHTS
 
 
 def register(p: argparse.ArgumentParser) -> None:

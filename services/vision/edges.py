@@ -77,10 +77,16 @@ class Blob:
 
 
 def find_blob(
-    mask: np.ndarray, uv_undist: np.ndarray, step: float, min_pixels: int, border_cells: int = 2
+    mask: np.ndarray,
+    uv_undist: np.ndarray,
+    step: float,
+    min_pixels: int,
+    border_cells: int = 2,
+    min_elongation: float = 3.0,
 ) -> Blob | str:
     """The largest connected component of a grid mask (h, w) bool as a Blob, or the reason
-    there is none ('no_shaft')."""
+    there is none ('no_shaft': none, too small, or not at least `min_elongation` times longer
+    than wide, by the standard deviations along and across it)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if n < 2:
         return "no_shaft"
@@ -91,7 +97,9 @@ def find_blob(
     pts = uv_undist[ii, jj]
     c = pts.mean(0)
     cov = np.cov((pts - c).T)
-    _, vecs = np.linalg.eigh(cov)
+    lam, vecs = np.linalg.eigh(cov)
+    if lam[1] < min_elongation**2 * max(lam[0], 1e-9):  # a shaft is long and thin; shadows are not
+        return "no_shaft"
     g = vecs[:, 1]
     t = (pts - c) @ g
     h, w = mask.shape
