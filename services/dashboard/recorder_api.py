@@ -77,6 +77,7 @@ def router(client: RecorderClient, require: Callable[[Role], Any]) -> APIRouter:
     api = APIRouter(prefix="/api/recorder", tags=["recorder"])
     unavailable = {503: {"description": "no recorder answered on the bus"}}
     denied = {401: {"description": "no valid token"}, 403: {"description": "a viewer token: operators only"}}
+    bad_body = {400: {"description": "the body is not JSON"}}
 
     Viewer = Annotated[Role, Depends(require(Role.VIEWER))]
     Operator = Annotated[Role, Depends(require(Role.OPERATOR))]
@@ -90,7 +91,7 @@ def router(client: RecorderClient, require: Callable[[Role], Any]) -> APIRouter:
         """The recorder's status: state, file, size, duration, free disk, alarm, per-topic counts."""
         return _reply(client.command(A.RECORDER_ACTION_STATUS))
 
-    @api.post("/start", response_model=RecorderReply, responses={**unavailable, **denied})
+    @api.post("/start", response_model=RecorderReply, responses={**unavailable, **denied, **bad_body})
     def start(body: StartRequest, request: Request, role: Operator) -> RecorderReply:
         """Start a recording (operators). Recorded as an event in the new file."""
         log.info(
@@ -106,14 +107,14 @@ def router(client: RecorderClient, require: Callable[[Role], Any]) -> APIRouter:
             )
         return _reply(reply)
 
-    @api.post("/stop", response_model=RecorderReply, responses={**unavailable, **denied})
+    @api.post("/stop", response_model=RecorderReply, responses={**unavailable, **denied, **bad_body})
     def stop(body: StopRequest, request: Request, role: Operator) -> RecorderReply:
         """Stop the recording (operators). The event is recorded before the file closes."""
         log.info("operator action: stop recording (reason %r) by %s", body.reason, who(request, role))
         client.command(A.RECORDER_ACTION_MARK, f"dashboard: stop by {who(request, role)}: {body.reason}".rstrip(": "))
         return _reply(client.command(A.RECORDER_ACTION_STOP, body.reason or "dashboard"))
 
-    @api.post("/mark", response_model=RecorderReply, responses={**unavailable, **denied})
+    @api.post("/mark", response_model=RecorderReply, responses={**unavailable, **denied, **bad_body})
     def mark(body: MarkRequest, request: Request, role: Operator) -> RecorderReply:
         """Mark an event in the recording (operators)."""
         log.info("operator action: mark %r by %s", body.label, who(request, role))

@@ -147,6 +147,8 @@
     if (st.preview_seq && st.preview_seq !== view.previewSeq) {
       view.previewSeq = st.preview_seq;
       $("preview").src = `/api/preview?seq=${st.preview_seq}`;
+      $("preview").classList.remove("hidden");
+      $("preview-none").classList.add("hidden");
     }
     text("clock", `t = ${fmt(st.t_ms / 1000, 1)} s`);
   }

@@ -153,7 +153,7 @@
     ctx.clearRect(0, 0, w, h);
     if (!env) return;
     const [d0, d1, db] = env.depth_bins_mm, [t0, t1, tb] = env.tilt_bins_deg;
-    const left = 34 * dpr, bottom = 26 * dpr, pw = w - left - 6 * dpr, ph = h - bottom - 6 * dpr;
+    const left = 40 * dpr, bottom = 26 * dpr, pw = w - left - 6 * dpr, ph = h - bottom - 6 * dpr;
     const nx = Math.round((d1 - d0) / db), ny = Math.round((t1 - t0) / tb);
     let max = 1;
     for (const c of env.cells) if (c[2] > max) max = c[2];
@@ -165,7 +165,7 @@
     ctx.strokeStyle = COLORS.grid; ctx.strokeRect(left, 6 * dpr, pw, ph);
     ctx.fillStyle = COLORS.text; ctx.font = `${11 * dpr}px sans-serif`;
     for (let d = d0; d <= d1; d += 20) ctx.fillText(String(d), left + ((d - d0) / (d1 - d0)) * pw - 8 * dpr, h - 12 * dpr);
-    for (let t = t0; t <= t1; t += 10) ctx.fillText(String(t), 4 * dpr, 6 * dpr + ph - ((t - t0) / (t1 - t0)) * ph + 4 * dpr);
+    for (let t = t0; t <= t1; t += 10) ctx.fillText(String(t), 20 * dpr, 6 * dpr + ph - ((t - t0) / (t1 - t0)) * ph + 4 * dpr);
     ctx.fillText("insertion depth L (mm)", left + pw / 2 - 50 * dpr, h - 1 * dpr);
     ctx.save(); ctx.translate(10 * dpr, 6 * dpr + ph / 2 + 30 * dpr); ctx.rotate(-Math.PI / 2);
     ctx.fillText("tilt (deg)", 0, 0); ctx.restore();
