@@ -55,6 +55,9 @@ def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Ru
     Raises UserError for a bad token setting or calibration file."""
     tokens = tokens if tokens is not None else load_tokens(config.token_file)
     check_binding(config.is_loopback(), config.host, tokens)
+    problem = config.foxglove_binding_problem()
+    if problem:
+        raise UserError(problem)
     calibration = None
     if config.calibration_file:
         try:
@@ -84,9 +87,20 @@ def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Ru
     host = f"[{config.host}]" if ":" in config.host else config.host
     running = Running(feed, server, thread, f"http://{host}:{port}")
     if config.foxglove_bridge:
-        from services.dashboard.foxglove_bridge import FoxgloveBridge
+        try:
+            from services.dashboard.foxglove_bridge import FoxgloveBridge
 
-        running.bridge = FoxgloveBridge.start(bus, config)
+            running.bridge = FoxgloveBridge.start(bus, config)
+        except ImportError as e:
+            running.stop()
+            raise UserError(
+                f"dashboard: foxglove_bridge needs foxglove-sdk (pip install -e '.[foxglove]'): {e}"
+            ) from None
+        except Exception as e:  # the port taken, most often
+            running.stop()
+            raise UserError(
+                f"dashboard: the Foxglove bridge cannot start on port {config.foxglove_port}: {e}"
+            ) from None
     return running
 
 

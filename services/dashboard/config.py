@@ -40,6 +40,8 @@ class DashboardConfig(ServiceConfig):
     foxglove_bridge: bool = False
     foxglove_host: str = "127.0.0.1"
     foxglove_port: int = Field(8765, ge=0, le=65535)
+    # The Foxglove protocol has no authentication: a non-loopback foxglove_host needs this too.
+    foxglove_allow_remote: bool = False
     # Topics the bridge serves (key expression under the bus prefix).
     foxglove_topics: str = "**"
 
@@ -53,6 +55,15 @@ class DashboardConfig(ServiceConfig):
     def is_loopback(self) -> bool:
         """True when `host` only accepts connections from this machine."""
         return host_is_loopback(self.host)
+
+    def foxglove_binding_problem(self) -> str | None:
+        """Why the Foxglove bridge may not start as configured, or None."""
+        if self.foxglove_bridge and not host_is_loopback(self.foxglove_host) and not self.foxglove_allow_remote:
+            return (
+                f"dashboard: foxglove_host {self.foxglove_host} is not loopback and the Foxglove protocol has no "
+                "authentication; set foxglove_allow_remote: true to serve it there anyway"
+            )
+        return None
 
 
 def host_is_loopback(host: str) -> bool:
