@@ -131,6 +131,8 @@ class Calibration:
             doc = yaml.safe_load(p.read_text())
         except OSError as e:
             raise CalibrationError(f"{p}: cannot read ({e.strerror or e})") from None
+        except UnicodeDecodeError:
+            raise CalibrationError(f"{p}: not a tiplog calibration file (not text)") from None
         except yaml.YAMLError as e:
             mark = getattr(e, "problem_mark", None)
             at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

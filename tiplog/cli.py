@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import traceback
 from collections.abc import Sequence
 
 from tiplog import __version__
@@ -60,6 +61,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # `tiplog info X | head`: the reader left, nothing to report
+        return 0
+    except Exception:
+        traceback.print_exc()
+        print(
+            f"tiplog {args.command}: internal error: a bug in tiplog {__version__}, not in your input; please "
+            "report it on the project's issue tracker with the command line and the traceback above",
+            file=sys.stderr,
+        )
+        return 70  # EX_SOFTWARE
 
 
 if __name__ == "__main__":

@@ -80,17 +80,42 @@ def format_validation_error(err: ValidationError, where: str = "") -> str:
     return "\n".join(lines)
 
 
+def yaml_error_at(e: yaml.YAMLError) -> str:
+    """' at line L, column C: problem' for a YAML syntax error (1-based, as editors count)."""
+    mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+    problem = getattr(e, "problem", None) or e.__class__.__name__
+    at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    return f"{at}: {problem}"
+
+
+def read_yaml_file(path: str | Path, what: str = "config") -> Any:
+    """The parsed YAML document of `path`; ConfigError naming the file (and the line and column
+    of a syntax error) when it is missing, a folder, unreadable, empty, binary or not YAML."""
+    p = Path(path)
+    try:
+        text = p.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{what} error: file {p} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{what} error: {p} is a folder, expected a YAML file") from None
+    except OSError as e:
+        raise ConfigError(f"{what} error: cannot read {p} ({e.strerror or e})") from None
+    if not text.strip():
+        raise ConfigError(f"{what} error: {p} is empty")
+    try:
+        return yaml.safe_load(text.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{what} error: {p} is not a text file (byte {e.start} is not UTF-8)") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{what} error: {p} is not valid YAML{yaml_error_at(e)}") from None
+
+
 def load_section(path: str | Path | None, section: str) -> dict[str, Any]:
     """{'bus': ..., **<section>} from the YAML file (empty when no file)."""
     if path is None:
         return {}
     p = Path(path)
-    try:
-        doc = yaml.safe_load(p.read_text()) or {}
-    except FileNotFoundError:
-        raise ConfigError(f"config error: file {p} does not exist") from None
-    except yaml.YAMLError as e:
-        raise ConfigError(f"config error: {p} is not valid YAML: {e}") from None
+    doc = read_yaml_file(p)
     if not isinstance(doc, dict):
         raise ConfigError(f"config error: {p} must hold a mapping of sections")
     out: dict[str, Any] = {}

@@ -21,7 +21,9 @@ import time
 from pathlib import Path
 
 from tiplog.bus import Bus, BusConfig
-from tiplog.userio import input_file
+from tiplog.calibration import Calibration, CalibrationError
+from tiplog.config import load_section
+from tiplog.userio import UserError, input_file
 
 log = logging.getLogger("tiplog.up")
 
@@ -68,6 +70,12 @@ def calibration_sets(
     sets: dict[str, list[str]] = {n: [] for n in names}
     if calibration:
         path = input_file(calibration, "calibration file").resolve()
+        try:
+            Calibration.load_yaml(path)
+        except CalibrationError as e:
+            raise UserError(str(e)) from None
+        except UnicodeDecodeError:
+            raise UserError(f"{path}: not a calibration file (not text)") from None
     elif "bench" in names:
         path = run_dir / "calibration.yaml"
         sets["bench"].append(f"calibration_file={path}")
@@ -97,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     if args.config:
-        input_file(args.config, "configuration file")
+        load_section(args.config, "up")  # a missing file or a YAML error stops here, named
     run_dir = Path(tempfile.mkdtemp(prefix="tiplog-up-"))
     sets, calibration = calibration_sets(names, args.calibration, run_dir)
     stop = threading.Event()

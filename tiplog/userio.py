@@ -12,6 +12,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from tiplog import mcap_salvage
+
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -33,8 +35,11 @@ def input_file(path: str | os.PathLike, what: str = "input file") -> Path:
     return p
 
 
-def input_mcap(path: str | os.PathLike) -> Path:
-    """`path` as a readable file that starts with the MCAP magic, or UserError."""
+def input_mcap(path: str | os.PathLike, allow_truncated: bool = False) -> Path:
+    """`path` as a readable file that starts with the MCAP magic, or UserError. A file cut short
+    (no footer: a crash, a full disk) is refused with how far it can be read and the command
+    that rebuilds it, unless `allow_truncated` (the caller then reads it with
+    `tiplog.mcap_salvage` and says so with `truncation_note`)."""
     p = input_file(path, "MCAP file")
     try:
         with open(p, "rb") as f:
@@ -43,7 +48,19 @@ def input_mcap(path: str | os.PathLike) -> Path:
         raise UserError(f"{p}: cannot read ({e.strerror or e})") from None
     if head != MCAP_MAGIC:
         raise UserError(f"{p}: not an MCAP file")
+    if not allow_truncated and not mcap_salvage.ends_in_order(p):
+        state, n = mcap_salvage.scan(p)
+        if not state.complete:
+            raise UserError(truncation_note(p, state, n))
     return p
+
+
+def truncation_note(path: Path, state: mcap_salvage.Salvage, messages: int, used: str = "readable") -> str:
+    """One line: where the file was cut, how much of it is usable, how to rebuild it."""
+    return (
+        f"{path}: cut short at byte {state.good_bytes} of {state.source_bytes} "
+        f"({messages} messages {used} before it); run `tiplog record recover {path}` for a complete file"
+    )
 
 
 def output_file(path: str | os.PathLike, force: bool = False) -> Path:
@@ -70,6 +87,9 @@ def atomic_output(path: str | os.PathLike, force: bool = False) -> Iterator[Path
     fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent or ".")
     os.close(fd)
     tmp_path = Path(tmp)
+    umask = os.umask(0)
+    os.umask(umask)
+    tmp_path.chmod(0o666 & ~umask)  # mkstemp's 0600 would be a surprise on the final file
     try:
         yield tmp_path
         if final.exists() and not force:  # appeared while we worked

@@ -16,7 +16,10 @@ def register(p: argparse.ArgumentParser) -> None:
         required=True,
         help="built-in name (static, latency, fit, translation, rotation, sweeps, teleop, demo) or YAML file",
     )
-    g.add_argument("--out", required=True, help="MCAP file to write")
+    g.add_argument(
+        "--out", required=True, metavar="FILE", help="MCAP file to write (never overwritten without --force)"
+    )
+    g.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--tier", choices=["measurement", "pixel"], default="measurement")
     g.add_argument("--duration", type=float, help="seconds (default: the scenario's)")
@@ -31,7 +34,7 @@ def register(p: argparse.ArgumentParser) -> None:
     g.add_argument("--quiet", action="store_true", help="no progress on stderr")
     g.set_defaults(func=_generate)
     r = sub.add_parser("report", help="fidelity report: the session's raw-sensor statistics beside the paper's")
-    r.add_argument("recording")
+    r.add_argument("recording", metavar="FILE", help="MCAP file of a simulated session")
     r.add_argument("--json", action="store_true", help="print the report as JSON")
     r.set_defaults(func=_report)
 
@@ -54,21 +57,20 @@ def _progress(quiet: bool):
 def _generate(args: argparse.Namespace) -> int:
     from services.bench.scenario import load_scenario
     from services.bench.session import generate
+    from tiplog.userio import UserError, atomic_output, output_file
 
+    output_file(args.out, args.force)  # before any work: a bad --out costs nothing
     sc = load_scenario(args.scenario, args.overrides)  # ConfigError -> exit 2 with the field named
     if args.duration is not None and args.duration <= 0:
-        print(f"tiplog sim generate: --duration must be positive (got {args.duration})", file=sys.stderr)
-        return 2
-    try:
+        raise UserError(f"--duration must be positive (got {args.duration})")
+    # Written under a temporary name and renamed when complete: Ctrl-C leaves nothing under --out.
+    with atomic_output(args.out, args.force) as tmp:
         summary = generate(
-            sc, args.out, seed=args.seed, tier=args.tier, duration_s=args.duration, progress=_progress(args.quiet)
+            sc, tmp, seed=args.seed, tier=args.tier, duration_s=args.duration, progress=_progress(args.quiet)
         )
-    except RuntimeError as e:
-        print(f"tiplog sim generate: {e}", file=sys.stderr)
-        return 1
     t = summary["timings"]
     print(
-        f"{summary['path']}: {summary['duration_s']:.1f} s of {sc.protocol} ({summary['trials']} trials), "
+        f"{args.out}: {summary['duration_s']:.1f} s of {sc.protocol} ({summary['trials']} trials), "
         f"{summary['messages']} messages in {t['total_s']:.1f} s "
         f"({summary['duration_s'] / max(t['total_s'], 1e-9):.0f}x real time)"
     )
@@ -77,11 +79,12 @@ def _generate(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     from services.bench.report.fidelity import format_table, report
+    from tiplog.userio import UserError, input_mcap
 
+    path = input_mcap(args.recording)
     try:
-        rep = report(args.recording)
+        rep = report(path)
     except (FileNotFoundError, KeyError) as e:
-        print(f"tiplog sim report: {args.recording}: not a simulated session ({e})", file=sys.stderr)
-        return 2
+        raise UserError(f"{path}: not a simulated session (no {e} in it)") from None
     print(json.dumps(rep, indent=2) if args.json else format_table(rep))
     return 0

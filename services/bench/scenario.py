@@ -11,11 +11,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from tiplog.camera_model import CameraModel
-from tiplog.config import ConfigError, format_validation_error, parse_override, set_path
+from tiplog.config import ConfigError, format_validation_error, parse_override, read_yaml_file, set_path
 
 try:  # the robot helper's motion configuration (services/bench/motion.py)
     from services.bench.robot.motion import MotionConfig
@@ -256,12 +255,9 @@ def load_scenario(name_or_path: str | Path, overrides: list[str] | dict[str, Any
         data: dict[str, Any] = _merge({"name": key, "motion": dict(MOTION_DEFAULTS)}, BUILTIN[key])
     else:
         p = Path(key)
-        if not p.is_file():
+        if not p.exists() and p.suffix not in (".yaml", ".yml") and "/" not in key:
             raise ConfigError(f"scenario error: {key!r} is neither a built-in ({', '.join(BUILTIN)}) nor a file")
-        try:
-            doc = yaml.safe_load(p.read_text()) or {}
-        except yaml.YAMLError as e:
-            raise ConfigError(f"scenario error: {p} is not valid YAML: {e}") from None
+        doc = read_yaml_file(p, "scenario")
         if not isinstance(doc, dict):
             raise ConfigError(f"scenario error: {p} must hold a mapping")
         base = doc.pop("base", None)

@@ -43,8 +43,9 @@ def register(p: argparse.ArgumentParser) -> None:
         a.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the reply")
         a.set_defaults(func=_control, action=action, set=[])
     rc = sub.add_parser("recover", help="rebuild a valid indexed file from a truncated one")
-    rc.add_argument("file")
-    rc.add_argument("--out", help="output file (default: FILE with .recovered.mcap)")
+    rc.add_argument("file", metavar="FILE", help="MCAP file cut short (a crash, a full disk)")
+    rc.add_argument("--out", metavar="FILE", help="output file (default: FILE with .recovered.mcap)")
+    rc.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     rc.add_argument("--json", action="store_true")
     rc.set_defaults(func=_recover)
 
@@ -120,13 +121,15 @@ def _recover(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from services.recorder.recover import recover
+    from tiplog.userio import UserError, atomic_output, input_mcap
 
-    src = Path(args.file)
-    if not src.is_file():
-        print(f"tiplog: {src} is not a file", file=sys.stderr)
-        return 2
+    src = input_mcap(args.file, allow_truncated=True)
     out = Path(args.out) if args.out else src.with_suffix(".recovered.mcap")
-    rep = recover(src, out)
+    if out.exists() and out.resolve() == src.resolve():
+        raise UserError(f"{out}: --out must differ from the file being recovered")
+    with atomic_output(out, args.force) as tmp:
+        rep = recover(src, tmp)
+    rep.output = str(out)
     if args.json:
         print(json.dumps(rep.as_dict(), indent=1))
         return 0

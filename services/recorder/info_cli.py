@@ -1,27 +1,32 @@
 """`tiplog info`: what a recording holds (duration, topics, types, rates, counts, gaps,
-metadata)."""
+metadata). A file cut short is shown as far as it can be read, and said so (exit status 2)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-from pathlib import Path
 
 
 def register(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recording")
+    p.add_argument("recording", metavar="FILE", help="MCAP file")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
     from services.recorder.info import format_info, inspect
+    from tiplog import mcap_salvage
+    from tiplog.userio import input_mcap, truncation_note
 
-    path = Path(args.recording)
-    if not path.is_file():
-        print(f"tiplog: {path} is not a file", file=sys.stderr)
-        return 2
+    path = input_mcap(args.recording, allow_truncated=True)
     info = inspect(path)
     print(json.dumps(info, indent=1) if args.json else format_info(info))
-    return 0
+    if info["indexed"]:
+        return 0
+    state, n = mcap_salvage.scan(path)
+    if state.complete:  # a finished data section without a summary: nothing lost
+        return 0
+    sys.stdout.flush()
+    print(f"tiplog info: {truncation_note(path, state, n, 'shown')}", file=sys.stderr)
+    return 2

@@ -11,14 +11,12 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
-from mcap.exceptions import McapError
-from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 from tiplog.mcap_io import LIBRARY, PROFILE
+from tiplog.mcap_salvage import Salvage, intact_records
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "": CompressionType.NONE}
 
@@ -65,28 +63,14 @@ class RecoveryReport:
         }
 
 
-class _Counting:
-    """Read-only stream that knows how many bytes the reader has consumed."""
-
-    def __init__(self, f: IO[bytes]):
-        self._f = f
-        self.pos = 0
-
-    def read(self, n: int = -1) -> bytes:
-        data = self._f.read(n)
-        self.pos += len(data)
-        return data
-
-
 def recover(source: str | Path, output: str | Path, *, compression: str = "lz4") -> RecoveryReport:
     """Copy every intact record of `source` into a new indexed file at `output`."""
     source, output = Path(source), Path(output)
     if source.resolve() == output.resolve():
         raise ValueError("output must differ from the source file")
     rep = RecoveryReport(str(source), str(output), source_bytes=source.stat().st_size)
+    state = Salvage(source_bytes=rep.source_bytes)
     with open(source, "rb") as fin, open(output, "wb") as fout:
-        counting = _Counting(fin)
-        reader = StreamReader(counting, emit_chunks=True, record_size_limit=1 << 31)  # type: ignore[arg-type]
         w = Writer(
             fout,
             compression=CompressionType.LZ4
@@ -129,24 +113,10 @@ def recover(source: str | Path, output: str | Path, *, compression: str = "lz4")
             channel_map[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid, dict(ch.metadata))
             channel_topic[ch.id] = ch.topic
 
-        try:
-            for rec in reader.records:
-                if isinstance(rec, Chunk):
-                    inner = breakup_chunk(rec, validate_crc=True)  # raises on a damaged chunk
-                    for r in inner:
-                        handle(r)
-                elif isinstance(rec, (DataEnd, Footer)):  # the data section ended in order
-                    rep.complete = True
-                    rep.good_bytes = counting.pos
-                    break
-                else:
-                    handle(rec)
-                rep.good_bytes = counting.pos
-        except (McapError, EOFError, ValueError, OSError, RuntimeError) as e:
-            rep.error = f"{type(e).__name__}: {e}"
-        except Exception as e:  # decompression libraries raise their own types on garbage
-            rep.error = f"{type(e).__name__}: {e}"
+        for rec in intact_records(fin, state):
+            handle(rec)
         w.finish()
+    rep.good_bytes, rep.complete, rep.error = state.good_bytes, state.complete, state.error
     if rep.complete:
         rep.good_bytes = rep.source_bytes
     return rep

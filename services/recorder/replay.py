@@ -20,6 +20,7 @@ from mcap.reader import make_reader
 
 from tiplog import topics
 from tiplog.bus import Bus, Publisher
+from tiplog.mcap_salvage import Salvage, ends_in_order, intact_messages
 
 log = logging.getLogger(__name__)
 NS_PER_S = 1_000_000_000
@@ -38,6 +39,7 @@ class ReplayReport:
     skipped_topics: set[str] = field(default_factory=set)
     duration_s: float = 0.0
     max_late_ns: int = 0  # worst lateness of a put against its due time
+    salvage: Salvage | None = None  # set for a file cut short: how far it could be read
 
     @property
     def messages(self) -> int:
@@ -89,7 +91,10 @@ def replay(
     pubs: dict[str, Publisher] = {}
     with open(path, "rb") as f:
         reader = make_reader(f)
-        summary = reader.get_summary()
+        try:
+            summary = reader.get_summary() if ends_in_order(path) else None
+        except Exception:  # a damaged summary: read the data section as a stream
+            summary = None
         if summary is not None:
             names = [c.topic for c in summary.channels.values()]
             chosen = [t for t in names if (t in wanted if wanted else not t.startswith(DEFAULT_EXCLUDE))]
@@ -102,7 +107,13 @@ def replay(
         first: int | None = None
         t0 = 0
         t_start = time.monotonic_ns()
-        for schema, channel, message in reader.iter_messages(log_time_order=True):
+        if summary is not None:
+            messages = reader.iter_messages(log_time_order=True)
+        else:  # cut short: what can be read, in file order (the recorder writes in log-time order)
+            f.seek(0)
+            rep.salvage = Salvage(source_bytes=Path(path).stat().st_size)
+            messages = intact_messages(f, rep.salvage)
+        for schema, channel, message in messages:
             if stop is not None and stop.is_set():
                 break
             topic = channel.topic

@@ -13,7 +13,7 @@ from tiplog.service import add_bus_arguments, overrides_from_args
 
 
 def register(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recording")
+    p.add_argument("recording", metavar="FILE", help="MCAP file")
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--speed", type=float, default=1.0, help="playback speed factor")
     speed.add_argument("--max", action="store_true", help="as fast as possible")
@@ -36,16 +36,18 @@ def _run(args: argparse.Namespace) -> int:
         bus: BusConfig = Field(default_factory=BusConfig)
         log_level: str = "INFO"
 
+    from tiplog.userio import UserError, input_mcap, truncation_note
+
+    path = input_mcap(args.recording, allow_truncated=True)
     if args.speed is not None and not args.max and args.speed <= 0:
-        print("tiplog: --speed must be > 0", file=sys.stderr)
-        return 2
+        raise UserError(f"--speed must be > 0 (got {args.speed})")
     config = load_config(_Cfg, "replay", args.config, overrides_from_args(args))
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set, daemon=True).start())
     with Bus(config.bus, service="replay") as bus:
         rep = replay(
             bus,
-            args.recording,
+            path,
             speed=args.speed,
             as_fast_as_possible=args.max,
             topics_=args.topics,
@@ -57,4 +59,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"  {topic:<24}{n:>10}")
     if rep.skipped_topics:
         print(f"skipped (unknown schema): {', '.join(sorted(rep.skipped_topics))}")
+    if rep.salvage is not None and not rep.salvage.complete:
+        sys.stdout.flush()
+        print(f"tiplog replay: {truncation_note(path, rep.salvage, rep.messages, 'replayed')}", file=sys.stderr)
+        return 2
     return 0
