@@ -6,6 +6,7 @@ Actions:
                                         mounting, accelerometer, ToF ray-plane, vision tip offset
                                         (+ --latency LAT.mcap: each stream's latency by lock-in)
   latency LAT.mcap                      lock-in latency table of a latency-protocol recording
+  hand-eye POSES.csv --out he.yaml      AX = XB from robot poses and marker poses in the camera
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import sys
 
 import yaml
 
-from services.fusion import calibrate_block, calibrate_data
+from services.fusion import calibrate_block, calibrate_data, calibrate_hand_eye
 from tiplog.calibration_fits import DegenerateDataError
 from tiplog.userio import UserError, atomic_output, output_file
 
@@ -59,6 +60,8 @@ def run_block(args: argparse.Namespace) -> int:
 def run_latency(args: argparse.Namespace) -> int:
     from services.fusion import calibrate_latency
 
+    if args.out:
+        output_file(args.out, args.force)  # refuse before any work
     data = calibrate_data.load(args.recording, args.prior)
     if data.prior is None:
         raise DegenerateDataError("latency: no starting constants: give --prior FILE")
@@ -87,3 +90,6 @@ def register(p: argparse.ArgumentParser) -> None:
     la.add_argument("--out", help="JSON file for the table")
     la.add_argument("--force", action="store_true")
     la.set_defaults(func=run_latency)
+    calibrate_hand_eye.register(
+        sub.add_parser("hand-eye", help="camera pose in the base: AX = XB from robot and marker poses (CSV)")
+    )
