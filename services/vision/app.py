@@ -119,7 +119,7 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     pipeline = loaded[0]
     camera: list[CameraModel] = []
     rejected: Counter[str] = Counter()
-    counts = {"processed": 0, "accepted": 0}
+    counts = {"processed": 0, "accepted": 0, "bad_frames": 0}
 
     def on_info(msg, _info) -> None:
         try:
@@ -139,15 +139,19 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     sub_img = ctx.bus.subscribe("camera/image", lambda m, i: slot.put((m, i)), msg_type=RawImage)
     next_status = time.monotonic() + cfg.status_period_s
     last_preview = 0.0
+
+    def status() -> None:
+        log.info(
+            "frames %d, processed %d, accepted %d, dropped stale %d, bad frames %d, undecodable %d, reasons %s",
+            slot.received, counts["processed"], counts["accepted"], slot.dropped_stale, counts["bad_frames"],
+            sub_img.decode_errors, dict(rejected) or "none",
+        )  # fmt: skip
+
     while not ctx.stop.is_set():
         item = slot.take(0.1)
         if time.monotonic() >= next_status:
             next_status += cfg.status_period_s
-            log.info(
-                "frames %d, processed %d, accepted %d, dropped stale %d, undecodable %d, rejected %s",
-                slot.received, counts["processed"], counts["accepted"], slot.dropped_stale, sub_img.decode_errors,
-                dict(rejected) or "none",
-            )  # fmt: skip
+            status()
         if item is None:
             continue
         msg, info = item  # type: ignore[misc]
@@ -158,6 +162,7 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
             frame = decode_frame(msg, camera[0])
         except FrameError as e:
             rejected[e.reason] += 1
+            counts["bad_frames"] += 1
             if rejected[e.reason] <= 5 or rejected[e.reason] % 100 == 0:
                 log.warning("frame at %d rejected (%d so far): %s", stamp, rejected[e.reason], e)
             obs = vision_pb2.VisionObservation(accepted=False, reject_reason=f"frame:{e.reason}")
@@ -178,6 +183,7 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
         if cfg.preview_hz > 0 and now - last_preview >= 1.0 / cfg.preview_hz:
             last_preview = now
             pub_prev.put(preview_message(frame, res, camera[0], cfg.preview_width_px))
+    status()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

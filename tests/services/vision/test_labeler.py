@@ -30,7 +30,7 @@ def test_tangent_planes_match_the_rendered_silhouette(rendered, camera):
 
 
 def test_junction_on_the_axis_within_half_a_millimetre(rendered, camera):
-    for img, truth, T in rendered:
+    for img, _truth, T in rendered:
         lab = label_frame(img, camera)
         assert lab.junction_visible
         u = T[:3, 2]
