@@ -7,6 +7,7 @@ Actions:
                                         (+ --latency LAT.mcap: each stream's latency by lock-in)
   latency LAT.mcap                      lock-in latency table of a latency-protocol recording
   hand-eye POSES.csv --out he.yaml      AX = XB from robot poses and marker poses in the camera
+  intrinsics IMAGES --out cam.yaml      camera intrinsics from chessboard views (folder or MCAP)
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import sys
 
 import yaml
 
-from services.fusion import calibrate_block, calibrate_data, calibrate_hand_eye
+from services.fusion import calibrate_block, calibrate_data, calibrate_hand_eye, calibrate_intrinsics
 from tiplog.calibration_fits import DegenerateDataError
 from tiplog.userio import UserError, atomic_output, output_file
 
@@ -92,4 +93,7 @@ def register(p: argparse.ArgumentParser) -> None:
     la.set_defaults(func=run_latency)
     calibrate_hand_eye.register(
         sub.add_parser("hand-eye", help="camera pose in the base: AX = XB from robot and marker poses (CSV)")
+    )
+    calibrate_intrinsics.register(
+        sub.add_parser("intrinsics", help="camera intrinsics and distortion from chessboard views")
     )
