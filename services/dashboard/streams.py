@@ -41,6 +41,7 @@ class StreamStats:
     def __init__(self) -> None:
         self._topics: dict[str, _TopicCount] = {}
         self._lock = threading.Lock()
+        self._seen = threading.Condition(self._lock)
         self._rate_ns = now_ns()
 
     def on_sample(self, topic: str, seq: int, publisher_id: int, receive_ns: int) -> None:
@@ -54,6 +55,12 @@ class StreamStats:
             if prev is not None and seq > prev + 1:
                 tc.gaps += seq - prev - 1
             tc.last_seq[publisher_id] = seq
+            self._seen.notify_all()
+
+    def wait_count(self, topic: str, n: int, timeout_s: float) -> bool:
+        """Block until `topic` has been seen at least `n` times."""
+        with self._seen:
+            return self._seen.wait_for(lambda: topic in self._topics and self._topics[topic].count >= n, timeout_s)
 
     def last_seen_ns(self, prefixes: tuple[str, ...]) -> int:
         """Newest arrival on any topic starting with one of `prefixes` (0: never)."""
@@ -92,11 +99,18 @@ class Health:
         self._alive: dict[str, bool] = {}
         self._changed_ns: dict[str, int] = {}
         self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
 
     def on_token(self, service: str, alive: bool) -> None:
         with self._lock:
             self._alive[service] = alive
             self._changed_ns[service] = now_ns()
+            self._changed.notify_all()
+
+    def wait_token(self, service: str, alive: bool, timeout_s: float) -> bool:
+        """Block until `service`'s token is seen as `alive` (True) or gone (False)."""
+        with self._changed:
+            return self._changed.wait_for(lambda: self._alive.get(service, False) == alive, timeout_s)
 
     def snapshot(self) -> dict[str, dict[str, object]]:
         """{service: {state: up|stale|down, since_s, last_data_age_s}} for the known services

@@ -11,7 +11,9 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from tests.services.dashboard.conftest import OPERATOR, VIEWER, make_robot, make_state
+from tiplog.bus import Bus
 from tiplog.clock import now_ns
+from tiplog.v1 import vision_pb2
 
 
 @pytest.mark.parametrize(
@@ -82,6 +84,21 @@ def test_health_counts_streams_and_gaps(served):
     assert h["streams"]["fusion/state"]["dropped"] == 5
     assert h["services"]["dashboard"]["state"] == "up"
     assert h["services"]["recorder"]["state"] == "down"
+
+
+def test_a_service_with_a_token_but_no_data_is_stale(served, bus_pair_configs):
+    health = served.running.feed.health
+    with Bus(bus_pair_configs[1], service="vision") as vision_bus:
+        assert health.wait_token("vision", True, 10)
+        with served.client(VIEWER) as c:
+            assert c.get("/api/health").json()["services"]["vision"]["state"] == "stale"
+            pub = vision_bus.publisher("vision/observation")
+            pub.put(vision_pb2.VisionObservation(accepted=False))
+            assert served.running.feed.streams.wait_count("vision/observation", 1, 10)
+            assert c.get("/api/health").json()["services"]["vision"]["state"] == "up"
+    assert health.wait_token("vision", False, 10)
+    with served.client(VIEWER) as c:
+        assert c.get("/api/health").json()["services"]["vision"]["state"] == "down"
 
 
 def test_websocket_delivers_every_state_in_order(served):
