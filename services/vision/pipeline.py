@@ -57,8 +57,9 @@ def network_lines(prob: np.ndarray, camera: CameraModel, seg: Segmenter, p: Pipe
     if isinstance(blob, str):
         return ShaftLabel(False, blob)
     dark = (1.0 - prob).astype(np.float32)
-    # a probability step of 1 spans about one grid cell: per full-resolution pixel, 1 / step
-    min_step = 0.25 / spec.step
+    # a probability step of 1 spans about one grid cell, 1 / step per full-resolution pixel; a
+    # tenth of that is still an edge
+    min_step = 0.1 / spec.step
     return lines_from_blob(
         dark, camera, float(spec.step), spec.grid_offset, blob, float(spec.step),
         window_px=1.5 * spec.step, min_step=min_step, keep_fraction=p.labeler.keep_fraction,
