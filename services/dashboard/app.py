@@ -10,6 +10,7 @@ and operator tokens (environment or token file, see `services.dashboard.auth`). 
 from __future__ import annotations
 
 import logging
+import ssl
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -64,6 +65,20 @@ def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Ru
             calibration = Calibration.load_yaml(input_file(config.calibration_file, "calibration file"))
         except CalibrationError as e:
             raise UserError(f"{config.calibration_file}: {e}") from None
+    if bool(config.tls_certfile) != bool(config.tls_keyfile):
+        raise UserError("dashboard: tls_certfile and tls_keyfile go together")
+    tls = {}
+    if config.tls_certfile:
+        tls = {
+            "ssl_certfile": str(input_file(config.tls_certfile, "TLS certificate")),
+            "ssl_keyfile": str(input_file(config.tls_keyfile, "TLS key")),
+        }
+        try:  # uvicorn would fail on its own thread, with a traceback: check here
+            ssl.create_default_context(ssl.Purpose.CLIENT_AUTH).load_cert_chain(tls["ssl_certfile"], tls["ssl_keyfile"])
+        except (ssl.SSLError, OSError) as e:
+            raise UserError(
+                f"dashboard: {config.tls_certfile} / {config.tls_keyfile}: not a usable certificate and key ({e})"
+            ) from None
     feed = BusFeed(
         bus,
         trail_samples=config.trail_samples,
@@ -74,7 +89,9 @@ def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Ru
     )
     app = create_app(feed, config, tokens, RecorderClient(bus, config.recorder_timeout_s))
     server = uvicorn.Server(
-        uvicorn.Config(app, host=config.host, port=config.port, log_level="warning", access_log=False, lifespan="on")
+        uvicorn.Config(
+            app, host=config.host, port=config.port, log_level="warning", access_log=False, lifespan="on", **tls
+        )
     )
     thread = threading.Thread(target=server.run, name="dashboard-http", daemon=True)
     thread.start()
@@ -85,7 +102,7 @@ def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Ru
         thread.join(0.02)
     port = server.servers[0].sockets[0].getsockname()[1]
     host = f"[{config.host}]" if ":" in config.host else config.host
-    running = Running(feed, server, thread, f"http://{host}:{port}")
+    running = Running(feed, server, thread, f"{'https' if tls else 'http'}://{host}:{port}")
     if config.foxglove_bridge:
         try:
             from services.dashboard.foxglove_bridge import FoxgloveBridge

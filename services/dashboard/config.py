@@ -20,6 +20,10 @@ class DashboardConfig(ServiceConfig):
 
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)  # 0: any free port (tests)
+    # HTTPS: a PEM certificate (chain) and its key; off when empty. Tokens cross the network in
+    # every request: a dashboard bound beyond loopback should use TLS here or behind a proxy.
+    tls_certfile: str | None = None
+    tls_keyfile: str | None = None
     # YAML file with `viewer:` and `operator:` tokens (each a string or a list of strings).
     token_file: str | None = None
     # Trail kept for the page: 2 min at the gyro rate (the page keeps the same).

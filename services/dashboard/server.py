@@ -111,7 +111,8 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
             log.warning("rejected sign-in from %s", request.client.host if request.client else "?")
             return HTMLResponse(LOGIN_PAGE.format(message="That token is not valid."), status_code=401)
         resp = RedirectResponse("/", status_code=303)
-        resp.set_cookie(COOKIE, token, httponly=True, samesite="strict", path="/")
+        secure = request.url.scheme == "https"
+        resp.set_cookie(COOKIE, token, httponly=True, samesite="strict", path="/", secure=secure)
         return resp
 
     @app.get("/static/{name}", include_in_schema=False)

@@ -4,11 +4,14 @@ address without them."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 
+import httpx
 import pytest
 
+from services.dashboard.app import start
 from services.dashboard.auth import ENV_OPERATOR, ENV_VIEWER, Role, Tokens, bearer, check_binding, load_tokens
 from services.dashboard.config import DashboardConfig, host_is_loopback
 from tests.conftest import ROOT
@@ -109,3 +112,48 @@ def test_service_refuses_a_public_address_without_tokens(bus_pair_configs):
     errors = [ln for ln in proc.stderr.splitlines() if " ERROR " in ln]
     assert len(errors) == 1 and "0.0.0.0 is not loopback" in errors[0], proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def _self_signed(tmp_path):
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is needed to make a test certificate")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=127.0.0.1"]
+        + ["-keyout", str(key), "-out", str(cert)],
+        check=True,
+        capture_output=True,
+        timeout=60,
+    )
+    return cert, key
+
+
+def test_https_with_a_certificate(bus_pair_configs, tmp_path):
+    cert, key = _self_signed(tmp_path)
+    listen_cfg, _ = bus_pair_configs
+    with Bus(listen_cfg, service="dashboard") as bus:
+        cfg = DashboardConfig(bus=listen_cfg, port=0, tls_certfile=str(cert), tls_keyfile=str(key))
+        running = start(bus, cfg, Tokens((V,), (OP,)))
+        try:
+            assert running.url.startswith("https://")
+            with httpx.Client(base_url=running.url, verify=False) as c:
+                assert c.get("/api/state").status_code == 401
+                r = c.post(
+                    "/login", content=f"token={OP}", headers={"Content-Type": "application/x-www-form-urlencoded"}
+                )
+                assert r.status_code == 303
+                cookie = r.headers["set-cookie"].lower()
+                assert "httponly" in cookie and "samesite=strict" in cookie and "secure" in cookie
+        finally:
+            running.stop()
+
+
+def test_a_bad_certificate_is_one_clear_error(bus_pair_configs, tmp_path):
+    cert, _key = _self_signed(tmp_path)
+    listen_cfg, _ = bus_pair_configs
+    with Bus(listen_cfg, service="dashboard") as bus:
+        cfg = DashboardConfig(bus=listen_cfg, port=0, tls_certfile=str(cert), tls_keyfile=str(cert))
+        with pytest.raises(UserError, match="not a usable certificate and key"):
+            start(bus, cfg, Tokens())
+        with pytest.raises(UserError, match="go together"):
+            start(bus, DashboardConfig(bus=listen_cfg, port=0, tls_certfile=str(cert)), Tokens())
