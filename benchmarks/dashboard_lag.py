@@ -38,23 +38,34 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def publisher(endpoint: str, prefix: str, seconds: float, rate_hz: float) -> int:
-    """Child process: FusionState at `rate_hz`, stamped now_ns() just before each put."""
+def _state(k: int, stamp_ns: int, rate_hz: float):
+    """A state on a slow figure of eight, 20 mm across, with depth and tilt moving."""
     from tiplog.v1 import fusion_pb2
 
+    t = k / rate_hz
+    st = fusion_pb2.FusionState(depth_mm=140.0 + 5.0 * np.sin(0.3 * t), tilt_deg=6.0 + 4.0 * np.sin(0.2 * t))
+    st.tip_m.x, st.tip_m.y, st.tip_m.z = 0.6 + 0.01 * np.sin(0.5 * t), 0.01 * np.sin(1.0 * t), 0.2 + 0.002 * np.cos(t)
+    st.shaft_direction.z = -1.0
+    st.header.seq = k
+    st.header.stamp_ns = stamp_ns
+    return st
+
+
+def publisher(endpoint: str, prefix: str, seconds: float, rate_hz: float, prefill: int = 0) -> int:
+    """Child process: `prefill` states at once (stamped as if 1/rate_hz apart in the past),
+    then FusionState at `rate_hz`, stamped now_ns() just before each put."""
     with Bus(BusConfig(connect=[endpoint], prefix=prefix), service="fusion") as bus:
         pub = bus.publisher("fusion/state")
         time.sleep(1.0)  # benchmark only: let the dashboard's subscription propagate
         period = 1.0 / rate_hz
+        start_ns = now_ns()
+        for k in range(prefill):
+            pub.put(_state(k, start_ns - int((prefill - k) * period * 1e9), rate_hz))
         t_next = time.monotonic()
         end = t_next + seconds
-        k = 0
+        k = prefill
         while time.monotonic() < end:
-            st = fusion_pb2.FusionState(depth_mm=140.0 + 0.01 * (k % 100), tilt_deg=5.0)
-            st.tip_m.x, st.tip_m.y, st.tip_m.z = 0.6 + 1e-5 * (k % 300), 0.0, 0.2
-            st.header.seq = k
-            st.header.stamp_ns = now_ns()
-            pub.put(st)
+            pub.put(_state(k, now_ns(), rate_hz))
             k += 1
             t_next += period
             time.sleep(max(0.0, t_next - time.monotonic()))
@@ -155,9 +166,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clients", type=int, default=1)
     ap.add_argument("--rate", type=float, default=200.0, help="state rate, Hz (the gyro rate)")
     ap.add_argument("--publisher", nargs=2, metavar=("ENDPOINT", "PREFIX"), help=argparse.SUPPRESS)
+    ap.add_argument("--prefill", type=int, default=0, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.publisher:
-        return publisher(a.publisher[0], a.publisher[1], a.seconds, a.rate)
+        return publisher(a.publisher[0], a.publisher[1], a.seconds, a.rate, a.prefill)
     r = run(a.seconds, a.clients, a.rate)
     print(
         f"dashboard display lag, {a.clients} client(s), {a.rate:g} Hz, {a.seconds:g} s: "

@@ -171,15 +171,22 @@
     };
   }
 
-  function frame() {
+  // The last 600 frames: [time since the previous frame, time spent drawing] in ms.
+  view.frames = [];
+  let lastFrame = 0;
+  function frame(now) {
     if (view.dirty && view.est) {
       view.dirty = false;
+      const t0 = performance.now();
       updateNumbers();
       const sc = scene();
       D.drawPath($("path"), sc);
       D.drawInset($("inset"), sc, 30);
       D.drawEnvelope($("envelope"), view.envelope);
+      view.frames.push([lastFrame ? now - lastFrame : 0, performance.now() - t0]);
+      if (view.frames.length > 600) view.frames.shift();
     }
+    lastFrame = now;
     requestAnimationFrame(frame);
   }
 
