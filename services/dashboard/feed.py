@@ -83,6 +83,7 @@ class BusFeed:
         self.latest_receive_ns: dict[str, int] = {}
         self.preview: tuple[int, str, bytes] | None = None  # (seq, format, data)
         self._preview_seq = 0
+        self._preview_cv = threading.Condition()
         self._subs: list[Any] = []
         self._closed = False
         sub = bus.subscribe
@@ -173,8 +174,15 @@ class BusFeed:
         fmt = msg.format.lower()
         if fmt in ("jpeg", "jpg", "png", "webp"):
             self._preview_seq += 1
-            self.preview = (self._preview_seq, "jpeg" if fmt == "jpg" else fmt, bytes(msg.data))
+            with self._preview_cv:
+                self.preview = (self._preview_seq, "jpeg" if fmt == "jpg" else fmt, bytes(msg.data))
+                self._preview_cv.notify_all()
         self.latest_receive_ns[info.topic] = info.receive_ns
+
+    def wait_preview(self, timeout_s: float) -> bool:
+        """Block until a preview image has been kept."""
+        with self._preview_cv:
+            return self._preview_cv.wait_for(lambda: self.preview is not None, timeout_s)
 
     # derived quantities ----------------------------------------------------
     def _error_mm(self, stamp_ns: int, tip_mm: np.ndarray) -> list[float]:

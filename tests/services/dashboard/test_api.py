@@ -145,3 +145,18 @@ def test_page_scripts_never_write_markup():
         for sink in ("innerHTML", "outerHTML", "insertAdjacentHTML", "document.write", "eval(", "new Function"):
             assert sink not in text, f"{js.name} uses {sink}"
     assert "<script>" not in (STATIC / "index.html").read_text()  # no inline script (CSP forbids it)
+
+
+def test_preview_served_as_published_and_only_raster_formats(served):
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+
+    pub = served.pub_bus.publisher("vision/preview")
+    with served.client(VIEWER) as c:
+        assert c.get("/api/preview").status_code == 404
+        pub.put(CompressedImage(format="svg+xml", data=b"<svg onload='alert(1)'/>"))  # never served
+        jpeg = b"\xff\xd8\xff\xe0fake-jpeg-bytes"
+        pub.put(CompressedImage(format="jpeg", data=jpeg))
+        assert served.running.feed.wait_preview(10)
+        r = c.get("/api/preview")
+        assert r.status_code == 200 and r.content == jpeg and r.headers["content-type"] == "image/jpeg"
+        assert r.headers["x-content-type-options"] == "nosniff"
