@@ -31,6 +31,11 @@ E_Z = np.array([0.0, 0.0, 1.0])
 DEG = math.pi / 180.0
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b for (3,) vectors (np.cross is slow on single vectors)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -103,6 +108,19 @@ class TrackingFilter:
         self.offset_var = (p.vision_offset_sigma_mm * 1e-3) ** 2
         self.ray_var = (p.vision_ray_sigma_mm * 1e-3) ** 2
         self.grav_period_ns = int(1e9 / p.gravity_rate_hz) if p.gravity_rate_hz > 0 else None
+        self._F = np.eye(N)
+        self._I3 = np.eye(3)
+        self._diag = np.diag_indices(N)
+        Q = np.zeros(N)
+        if self.imu:
+            Q[IV] = self.q_acc
+            Q[ITH] = self.q_gyro
+            Q[IBA] = self.q_ba
+        else:
+            Q[IV] = p.no_imu_accel_rw_mps2_rts**2
+            Q[ITH] = (p.no_imu_rate_rw_dps_rts * DEG) ** 2
+        Q[IBR] = self.q_brho
+        self._Q = Q  # per second; the gyro-bias entries are set per step (they grow with |w|)
 
     # ------------------------------------------------------------------ initialisation
     def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
@@ -147,8 +165,8 @@ class TrackingFilter:
         if max(abs(n_l @ self.rcm_cam - rho), abs(n_r @ self.rcm_cam - rho)) > self.prm.trocar_gate_mm * 1e-3:
             return None
         m = n_l + n_r
-        q = np.cross(self.rcm_cam, d)
-        u_c = np.cross(m, q)
+        q = cross(self.rcm_cam, d)
+        u_c = cross(m, q)
         nu = np.linalg.norm(u_c)
         if nu < 1e-9:
             return None
@@ -174,41 +192,29 @@ class TrackingFilter:
         s.t_ns = int(t_ns)
         R = s.R
         prm = self.prm
+        F = self._F
+        Q = self._Q
         if self.imu:
             w_tool = self.R_ti @ (s.w_imu - s.bg)
             f_tool = self.R_ti @ (s.f_imu - s.ba)
             r = R @ self.r_imu_tip_tool
             w_b = R @ w_tool
-            a = R @ f_tool + G_BASE + np.cross(R @ s.alpha_tool, r) + np.cross(w_b, np.cross(w_b, r))
+            a = R @ f_tool + G_BASE + cross(R @ s.alpha_tool, r) + cross(w_b, cross(w_b, r))
             wn = math.sqrt(float(w_tool @ w_tool))
-        else:
-            w_tool = np.zeros(3)
-            f_tool = np.zeros(3)
-            a = np.zeros(3)
-            wn = 0.0
-        s.p += s.v * dt + 0.5 * dt * dt * a
-        s.v += a * dt
-        s.R = R @ exp_so3(w_tool * dt)
-        F = np.eye(N)
-        F[IP, IV] = np.eye(3) * dt
-        Q = np.zeros(N)
-        if self.imu:
             F[IV, ITH] = -(R @ skew(f_tool)) * dt
-            RR = R @ self.R_ti
-            F[IV, IBA] = -RR * dt
+            F[IV, IBA] = -(R @ self.R_ti) * dt
             F[ITH, ITH] = exp_so3(-w_tool * dt)
             F[ITH, IBG] = -self.R_ti * dt
-            Q[IV] = self.q_acc * dt
-            Q[ITH] = self.q_gyro * dt
             bg_rw = (prm.gyro_bias_rw_dps_rts + prm.gyro_bias_rw_dps_rts_per_radps * wn) * DEG
-            Q[IBG] = bg_rw * bg_rw * dt
-            Q[IBA] = self.q_ba * dt
+            Q[IBG] = bg_rw * bg_rw
+            s.R = R @ exp_so3(w_tool * dt)
         else:
-            Q[IV] = prm.no_imu_accel_rw_mps2_rts**2 * dt
-            Q[ITH] = (prm.no_imu_rate_rw_dps_rts * DEG) ** 2 * dt
-        Q[IBR] = self.q_brho * dt
+            a = np.zeros(3)
+        s.p += s.v * dt + 0.5 * dt * dt * a
+        s.v += a * dt
+        F[IP, IV] = self._I3 * dt
         P = F @ s.P @ F.T
-        P[np.diag_indices(N)] += Q
+        P[self._diag] += Q * dt
         s.P = P
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
@@ -228,12 +234,14 @@ class TrackingFilter:
             self.update_rcm(s)
 
     def on_accel(self, s: State, t_ns: int, f_imu: np.ndarray) -> None:
+        """Hold the sample for propagation; a gravity update at gravity_rate_hz, applied at the
+        state's time (at most one gyro period earlier: far below its noise)."""
         if not self.imu:
             return
-        self.propagate(s, t_ns)
         s.f_imu = np.asarray(f_imu, float)
         if self.grav_period_ns is not None and t_ns - s.last_grav_ns >= self.grav_period_ns:
             s.last_grav_ns = int(t_ns)
+            self.propagate(s, t_ns)
             self.update_gravity(s)
 
     # ------------------------------------------------------------------ updates
@@ -285,7 +293,7 @@ class TrackingFilter:
         R = s.R
         w_b = R @ (self.R_ti @ (s.w_imu - s.bg))
         r = R @ self.r_imu_tip_tool
-        a_imu = -np.cross(R @ s.alpha_tool, r) - np.cross(w_b, np.cross(w_b, r))
+        a_imu = -cross(R @ s.alpha_tool, r) - cross(w_b, cross(w_b, r))
         w = R.T @ (a_imu - G_BASE)
         f_pred = self.R_ti.T @ w + s.ba
         excess = abs(math.sqrt(float(s.f_imu @ s.f_imu)) / G - 1.0)
@@ -331,6 +339,7 @@ class TrackingFilter:
         A = self.A
         n = np.stack([obs["n_left"], obs["n_right"]])
         rho = self.c.shaft_radius_m
+        cam = self.c_cam
         gate = np.abs(n @ self.rcm_cam - rho).max()
         passed = gate <= prm.trocar_gate_mm * 1e-3
         applied = False
@@ -340,7 +349,7 @@ class TrackingFilter:
             H = np.zeros((4, N))
             H[:2, ITH] = -(nA @ s.R) @ skew(E_Z)
             H[2:, IP] = nA
-            y = np.concatenate([-(nA @ u), rho - nA @ (s.p - self.c_cam)])
+            y = np.concatenate([-(nA @ u), rho - nA @ (s.p - cam)])
             r = np.array([self.plane_var, self.plane_var, self.offset_var, self.offset_var])
             applied |= self._update(s, H, y, r, prm.gate_chi2_4, "vision_axis")
         else:
@@ -357,7 +366,7 @@ class TrackingFilter:
                 H = np.zeros((2, N))
                 H[:, IP] = EA
                 H[:, ITH] = (EA @ s.R) @ skew(E_Z) * self.jp
-                y = -(EA @ (J - self.c_cam))
+                y = -(EA @ (J - cam))
                 if self._update(s, H, y, np.full(2, self.ray_var), prm.gate_chi2_2, "vision_tip"):
                     s.last_tip_ns = s.t_ns
                     applied = True
@@ -380,9 +389,9 @@ class TrackingFilter:
 def _perp_basis(d: np.ndarray) -> np.ndarray:
     """(2, 3) orthonormal rows perpendicular to unit d."""
     a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(d, a)
+    e1 = cross(d, a)
     e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(d, e1)])
+    return np.stack([e1, cross(d, e1)])
 
 
 def _closest_params(p0: np.ndarray, u: np.ndarray, d: np.ndarray) -> tuple[float, float]:

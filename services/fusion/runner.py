@@ -77,9 +77,11 @@ class FusionRunner:
         self._ready: list[tuple] = []  # heap of arrived events not yet processed (ahead of head)
         self._done_keys: list[tuple] = []  # processed events in key order
         self._done: list[tuple] = []
-        self._snap_keys: list[tuple] = []
-        self._snaps: list[_Track] = []
         self._track = _Track()
+        # snapshots after every gyro event, and one of the empty start (a frame captured before
+        # the first gyro sample can still be applied at its time)
+        self._snap_keys: list[tuple] = [(-(1 << 62), -1, 0)]
+        self._snaps: list[_Track] = [self._track.copy()]
         self._seq = 0
         self._last_pub_t = -(1 << 62)
         self._last_arrival = -(1 << 62)
@@ -167,6 +169,16 @@ class FusionRunner:
         out: list[StateSample] = []
         while self._gyro_due:
             self._publish_next(out)
+        return out
+
+    def history(self) -> list[StateSample]:
+        """The kept history (the last history_ms) as the filter now has it, every late
+        measurement applied at its time: what the published states converge to once all
+        inputs have arrived."""
+        out = []
+        for tr in self._snaps:
+            if tr.state is not None and tr.state.finite():
+                out.append(make_sample(tr.state, self.calib.rcm_base_m, self._neutral(), self.lock_ns))
         return out
 
     def predict(self, now_ns: int) -> StateSample | None:
@@ -282,8 +294,7 @@ class FusionRunner:
             if s is not None:
                 f.on_accel(s, t, payload)
         elif kind == "tof":
-            if s is not None:
-                f.propagate(s, t)
+            if s is not None:  # at the state's time: at most one gyro period earlier
                 f.update_tof(s, payload)
         elif kind == "vision":
             if s is not None:

@@ -1,0 +1,40 @@
+"""Short bench sessions shared by the fusion-core tests (generated once per test run)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from google.protobuf.message import Message
+
+from tiplog.cli import main as tiplog_main
+from tiplog.mcap_io import McapWriter, read_messages, read_metadata
+
+_CACHE: dict[tuple, Path] = {}
+
+
+def bench_session(tmp_path_factory, scenario: str = "teleop", seed: int = 11, duration_s: float = 9.0) -> Path:
+    key = (scenario, seed, duration_s)
+    if key not in _CACHE:
+        d = tmp_path_factory.mktemp(f"fusion_{scenario}_{seed}")
+        path = d / f"{scenario}.mcap"
+        args = ["sim", "generate", "--scenario", scenario, "--seed", str(seed), "--duration", str(duration_s)]
+        assert tiplog_main([*args, "--out", str(path), "--quiet"]) == 0
+        _CACHE[key] = path
+    return _CACHE[key]
+
+
+def inputs(path: Path) -> list[tuple[str, Message, int]]:
+    """(topic, message, arrival) of the filter's inputs in arrival order."""
+    want = ("device/gyro", "device/accel", "device/tof", "vision/observation", "camera/info")
+    return [(r.topic, r.message, r.log_time_ns) for r in read_messages(path, want)]
+
+
+def rewrite(src: Path, dst: Path, keep_topic, keep_metadata) -> None:
+    """Copy src to dst keeping only the topics and metadata records the predicates accept."""
+    with McapWriter(dst) as w:
+        for name, rec in read_metadata(src).items():
+            if keep_metadata(name):
+                w.add_metadata(name, rec)
+        for r in read_messages(src):
+            if keep_topic(r.topic):
+                w.write(r.topic, r.message, r.log_time_ns, r.publish_time_ns, r.sequence)
