@@ -34,7 +34,7 @@ def _arrays(samples):
 def _run(msgs, calib, params=None, schedule="offline", rng=None):
     r = FusionRunner(calib, params or Params())
     out = []
-    for i, (topic, msg, arr) in enumerate(msgs):
+    for topic, msg, arr in msgs:
         r.feed(topic, msg, arr)
         if schedule == "every":
             out += r.advance(arr)
