@@ -2,8 +2,8 @@
 
 Starts from the prior constants (a calibration file or the recording's as-calibrated
 metadata), replaces what the block determines (RCM, IMU mounting, ToF ray-plane model,
-vision tip offset; accelerometer bias/scale/misalignment go to the report, the calibration
-format has no field for them yet) and returns the new `Calibration` with a report of every
+vision tip offset, written into junction_proximal_m; accelerometer bias/scale/misalignment go
+to the report, the calibration format has no field for them yet) and returns the new `Calibration` with a report of every
 fit's residuals, held-out residuals and posterior SDs.
 """
 
@@ -165,7 +165,10 @@ def calibrate_block(
                 )
             )
         vo = fit_vision_offset(per_pose)
-        new["vision_tip_offset_m"] = vo.vision_tip_offset_m
+        # written as the junction-to-tip distance itself with a zero offset, so that a reader
+        # computing the tip as J + (junction_proximal_m -/+ vision_tip_offset_m) u gets it right
+        new["junction_proximal_m"] = prior.junction_proximal_m - vo.vision_tip_offset_m
+        new["vision_tip_offset_m"] = 0.0
         report["vision_offset"] = {
             "offset_mm": _r(vo.vision_tip_offset_m * 1e3),
             "junction_to_tip_mm": _r((prior.junction_proximal_m - vo.vision_tip_offset_m) * 1e3),

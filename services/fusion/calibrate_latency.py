@@ -132,12 +132,12 @@ def latency_table(data: CalibrationData, cal: Calibration) -> dict[str, Any]:
             except DegenerateDataError:
                 continue
             table.setdefault(stream, {})[axis] = {
-                "delay_ms": round(fit.group_delay_ms, 2),
-                "delay_se_ms": round(fit.delay_se_ms, 2),
-                "gain": round(fit.gain, 3),
-                "dead_time_ms": round(fit.dead_time_ms, 2),
-                "time_constant_ms": round(fit.time_constant_ms, 2),
-                "fit_residual": round(fit.residual, 4),
+                "delay_ms": float(round(fit.group_delay_ms, 2)),
+                "delay_se_ms": float(round(fit.delay_se_ms, 2)),
+                "gain": float(round(fit.gain, 3)),
+                "dead_time_ms": float(round(fit.dead_time_ms, 2)),
+                "time_constant_ms": float(round(fit.time_constant_ms, 2)),
+                "fit_residual": float(round(fit.residual, 4)),
                 "segments": len(freqs),
             }
     require(len(table) > 0, "latency", "no stream could be fitted (need 3+ frequencies per channel)")

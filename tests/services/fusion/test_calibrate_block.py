@@ -74,6 +74,8 @@ def test_tof_model_predicts_the_true_range_within_5_mm(fitted):
 def test_vision_junction_to_tip_within_1_mm(fitted):
     _, cal, report, truth = fitted
     assert abs(report["vision_offset"]["junction_to_tip_mm"] - truth["junction_proximal_m"] * 1e3) < 1.0
+    assert cal.junction_proximal_m == pytest.approx(report["vision_offset"]["junction_to_tip_mm"] * 1e-3, abs=1e-6)
+    assert cal.vision_tip_offset_m == 0.0
     assert report["vision_offset"]["poses"] >= 8
 
 

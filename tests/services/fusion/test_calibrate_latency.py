@@ -57,5 +57,8 @@ def test_latency_table_recovers_the_bench_latencies(tmp_path, capsys):
     for stream, t in tol.items():
         assert abs(table[stream]["latency_ms"] - truth[stream]) < t, (stream, table[stream], truth[stream])
     assert set(table["gyro"]) >= {"tilt", "roll"} and "depth" in table["tof"]
+    applied = calibrate_latency.apply(data.prior, table)
+    assert applied.latency_ms["camera"] == table["camera"]["latency_ms"]
+    assert applied.latency_ms["mag"] == data.prior.latency_ms["mag"]  # not fitted: kept
     assert main(["calibrate", "latency", str(path)]) == 0
     assert "| depth |" in capsys.readouterr().out
