@@ -85,6 +85,8 @@ class BusFeed:
         self._preview_seq = 0
         self._preview_cv = threading.Condition()
         self._subs: list[Any] = []
+        # (state total, newest state as sent to pages), shared by the websocket senders.
+        self.current_cache: tuple[int, dict[str, Any]] | None = None
         self._closed = False
         sub = bus.subscribe
         self._subs += [

@@ -59,6 +59,16 @@ class Wake:
         event.set()
 
 
+def _current(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
+    """The newest state as JSON-ready dict, built once per new state for all clients (the
+    senders share one event loop thread, so the cache needs no lock)."""
+    total = feed.state.total
+    hit = feed.current_cache
+    if hit is None or hit[0] != total:
+        hit = feed.current_cache = (total, payload.state_now(feed, t0_ns))
+    return hit[1]
+
+
 def _dumps(msg: dict[str, Any]) -> str:
     return json.dumps(msg, separators=(",", ":"), allow_nan=False)
 
@@ -125,7 +135,7 @@ async def _send_loop(websocket: WebSocket, feed: BusFeed, wake: Wake, config: Da
         if not (new_state or status_due or msg["reference"] or msg["vision"]):
             continue
         if new_state:
-            msg["current"] = payload.state_now(feed, t0_ns)
+            msg["current"] = _current(feed, t0_ns)
         if status_due:
             msg["status"] = payload.status(feed, t0_ns)
             next_status = now_ns() + period_ns

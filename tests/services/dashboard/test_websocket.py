@@ -48,6 +48,7 @@ class _FakeFeed:
         self.state = Ring(capacity, len(STATE_COLUMNS))
         self.reference = Ring(capacity, 4)
         self.vision = Ring(capacity, 5)
+        self.current_cache = None
 
 
 class _SlowSocket:
