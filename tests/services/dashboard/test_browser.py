@@ -46,10 +46,10 @@ def artifacts(tmp_path_factory) -> Path:
     return out
 
 
-def signed_in(browser, system: LiveSystem, token: str):
+def signed_in(browser, system: LiveSystem, token: str, viewport=(1440, 1000)):
     """A page signed in through the login form with `token`, its trail flowing."""
     # bypass_csp: Playwright's own waits evaluate strings, which the page's policy forbids.
-    ctx = browser.new_context(viewport={"width": 1440, "height": 1000}, bypass_csp=True)
+    ctx = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}, bypass_csp=True)
     page = ctx.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
@@ -122,13 +122,19 @@ def test_numbers_match_the_published_state_and_screenshot(browser, system, artif
         ctx.close()
 
 
-def test_trail_grows(browser, system):
-    ctx, page = signed_in(browser, system, VIEWER_TOKEN)
+@pytest.mark.parametrize("viewport", [(1280, 720), (1920, 1080), (800, 1000)], ids=["laptop", "cart", "narrow"])
+def test_trail_grows_and_the_page_fits_the_screen(browser, system, viewport):
+    ctx, page = signed_in(browser, system, VIEWER_TOKEN, viewport)
     try:
         n0 = page.evaluate("window.tiplog.est.n")
         page.wait_for_function("n => window.tiplog.est.n >= n + 200", arg=n0, timeout=15_000)
         span_s = float(page.text_content("#trail-span"))
         assert span_s > 0.5
+        # No sideways scrolling; the path view and the depth are on the first screen.
+        assert page.evaluate("document.documentElement.scrollWidth <= window.innerWidth")
+        box = page.locator("#path").bounding_box()
+        assert box["width"] >= 0.45 * viewport[0] and box["y"] < viewport[1]
+        assert page.locator("#v-depth").bounding_box()["y"] < 2 * viewport[1]
     finally:
         ctx.close()
 
