@@ -33,6 +33,24 @@ M = TypeVar("M", bound=Message)
 
 _ATTACH = struct.Struct("<QqI")
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+# How long a process may look for its router before it says, in one line, that none answers.
+NOTICE_AFTER_S = 2.0
+
+
+def no_router_line(endpoints: list[str]) -> str:
+    """The one line a process logs when no router answers at `endpoints`."""
+    eps = ", ".join(endpoints) or "(no endpoint)"
+    return (
+        f"bus: no router answers at {eps}; start one with `tiplog up` (the whole system) or "
+        f"`python -m tiplog.router --listen {endpoints[0] if endpoints else DEFAULT_ENDPOINT}`; still trying"
+    )
+
+
+def _loopback_tcp(endpoints: list[str]) -> str | None:
+    for e in endpoints:
+        if e.startswith(("tcp/127.", "tcp/localhost:", "tcp/[::1]:")):
+            return e
+    return None
 
 
 class BusConfig(BaseModel):
@@ -51,9 +69,14 @@ class BusConfig(BaseModel):
     multicast_scouting: bool = False
     # Shared memory for large payloads between processes on one host (zenoh default: on).
     shared_memory: bool = True
-    # A client cannot open until its router answers: retry this long (compose starts the
-    # router and the services together; a cart boots them in any order).
-    open_timeout_s: float = Field(30.0, ge=0.0, le=3600.0)
+    # A client cannot open until its router answers: retry this long, None = until stopped
+    # (compose starts the router and the services together; a cart boots them in any order).
+    # Either way the process says within NOTICE_AFTER_S that nothing answers, and where.
+    open_timeout_s: float | None = Field(None, ge=0.0, le=86400.0)
+    # Peer mode only: when nothing listens at the first loopback endpoint of `connect`, listen
+    # there too, so tiplog processes started alone on one machine (`tiplog replay` and
+    # `tiplog record run` in two terminals) find each other without `tiplog up`.
+    standalone: bool = False
 
     @field_validator("prefix")
     @classmethod
@@ -254,6 +277,7 @@ class Bus:
         self.config = config or BusConfig()
         self.prefix = self.config.prefix
         self.service = service
+        self._watch_stop = threading.Event()
         self.session = self._open(stop)
         self._declared: list[Any] = []
         self._closed = False
@@ -261,23 +285,72 @@ class Bus:
             self._declared.append(self.session.liveliness().declare_token(self.key(f"{topics.ALIVE}/{service}")))
 
     def _open(self, stop: threading.Event | None) -> zenoh.Session:
-        deadline = time.monotonic() + self.config.open_timeout_s
+        cfg = self.config
+        self.holds_endpoint: str | None = None
+        ep = _loopback_tcp(cfg.connect) if cfg.mode == "peer" and cfg.standalone else None
+        if ep is not None:
+            alone = cfg.model_copy(update={"listen": [*cfg.listen, ep], "connect": [e for e in cfg.connect if e != ep]})
+            try:
+                session = zenoh.open(alone.zenoh_config())
+            except zenoh.ZError:  # a router (or another standalone process) holds it: join it
+                pass
+            else:
+                self.holds_endpoint = ep
+                log.info(
+                    "bus: no router at %s: listening there, so tiplog processes on this machine find this one "
+                    "(`tiplog up` runs the whole system)",
+                    ep,
+                )
+                return session
+        t0 = time.monotonic()
+        deadline = None if cfg.open_timeout_s is None else t0 + cfg.open_timeout_s
         delay = 0.1
+        warned = False
         while True:
             try:
-                return zenoh.open(self.config.zenoh_config())
+                session = zenoh.open(cfg.zenoh_config())
             except zenoh.ZError as e:
-                if time.monotonic() + delay > deadline:
+                if deadline is not None and time.monotonic() + delay > deadline:
                     raise ConnectionError(
-                        f"bus: no router answered at {', '.join(self.config.connect) or '(no endpoint)'} "
-                        f"within {self.config.open_timeout_s:g} s ({e})"
+                        f"bus: no router answered at {', '.join(cfg.connect) or '(no endpoint)'} "
+                        f"within {cfg.open_timeout_s:g} s ({e})"
                     ) from None
-                log.info("bus: waiting for %s (%s)", ", ".join(self.config.connect), str(e).split(" at ")[0])
+                if not warned and time.monotonic() - t0 + delay >= NOTICE_AFTER_S:
+                    log.warning("%s", no_router_line(cfg.connect))
+                    warned = True
+                else:
+                    log.debug("bus: waiting for %s (%s)", ", ".join(cfg.connect), str(e).split(" at ")[0])
                 if stop is not None and stop.wait(delay):
                     raise ConnectionError("bus: stopped while waiting for the router") from None
                 if stop is None:
                     time.sleep(delay)
                 delay = min(2.0, delay * 2)
+                continue
+            if cfg.mode == "peer" and cfg.connect:
+                threading.Thread(
+                    target=self._watch_router, args=(session,), name="bus-router-watch", daemon=True
+                ).start()
+            return session
+
+    def _watch_router(self, session: zenoh.Session) -> None:
+        """A peer opens at once whether or not its router is there (zenoh keeps trying in the
+        background): say so after NOTICE_AFTER_S if nothing is connected, and when it is."""
+        if self._watch_stop.wait(NOTICE_AFTER_S):
+            return
+        warned = False
+        while not self._watch_stop.is_set():
+            try:
+                connected = bool(list(session.info.routers_zid()) or list(session.info.peers_zid()))
+            except Exception:  # the session closed under us
+                return
+            if connected:
+                if warned:
+                    log.info("bus: reached %s", ", ".join(self.config.connect))
+                return
+            if not warned:
+                log.warning("%s", no_router_line(self.config.connect))
+                warned = True
+            self._watch_stop.wait(1.0)
 
     # keys -----------------------------------------------------------------
     def key(self, topic: str) -> str:
@@ -354,6 +427,7 @@ class Bus:
         if self._closed:
             return
         self._closed = True
+        self._watch_stop.set()
         for d in reversed(self._declared):
             try:
                 if hasattr(d, "close"):

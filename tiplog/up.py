@@ -20,6 +20,8 @@ import threading
 import time
 from pathlib import Path
 
+import zenoh
+
 from tiplog.bus import Bus, BusConfig
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.config import load_section
@@ -112,7 +114,15 @@ def run(args: argparse.Namespace) -> int:
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: threading.Thread(target=stop.set, daemon=True).start())
     router = BusConfig(mode="router", listen=[args.listen], connect=[])
-    with Bus(router, service="up") as bus:
+    try:
+        bus = Bus(router, service="up")
+    except zenoh.ZError as e:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        raise UserError(
+            f"--listen {args.listen}: cannot listen there ({str(e).split(': ')[-1]}); another `tiplog up` "
+            "or a standalone tiplog process (replay, record) holds it: stop it, or give another --listen"
+        ) from None
+    with bus:
         # Fusion needs the calibration at start: with the bench's file it waits for the bench.
         waiting = {"fusion"} & set(names) if calibration is not None and not calibration.exists() else set()
         procs = {n: _spawn(n, args.listen, args.config, sets[n]) for n in names if n not in waiting}

@@ -53,7 +53,9 @@ def register(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from services.recorder.app import main
 
-    argv: list[str] = []
+    # Standalone: with no router on this machine the recorder holds the endpoint itself, so a
+    # `tiplog replay` started alone in another terminal reaches it.
+    argv: list[str] = ["--set", "bus.standalone=true"]
     for flag in ("config", "mode", "prefix"):
         v = getattr(args, flag, None)
         if v:

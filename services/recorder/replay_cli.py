@@ -41,7 +41,9 @@ def _run(args: argparse.Namespace) -> int:
     path = input_mcap(args.recording, allow_truncated=True)
     if args.speed is not None and not args.max and args.speed <= 0:
         raise UserError(f"--speed must be > 0 (got {args.speed})")
-    config = load_config(_Cfg, "replay", args.config, overrides_from_args(args))
+    # Standalone: with no router on this machine, the first tiplog process holds the endpoint
+    # and the others (`tiplog record run` in another terminal) join it.
+    config = load_config(_Cfg, "replay", args.config, [("bus.standalone", True), *overrides_from_args(args)])
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set, daemon=True).start())
     with Bus(config.bus, service="replay") as bus:
