@@ -155,12 +155,7 @@ def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st:
     """Advance state `st` over rows (t_s (N,), gyr (N, 3) rad/s, acc (N, 3) m/s^2, NaN = missing);
     writes the sensor-to-earth quaternion of every row into q_out (N, 4) and the bias into
     st. Rows whose time is not after the previous row's change nothing."""
-    tau_acc, p0_sig, forget_t, clip, mot_sig, vert_f, rest_sig = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6]
-    th_g, th_a, rest_min, max_gap = prm[7], prm[8], prm[9], abs(prm[10])
-    bias_on = prm[10] > 0
-    tau_rest = prm[11]
-    p0 = p0_sig * p0_sig
-    v_rate = 0.01 / forget_t  # (0.1 deg/s)^2 per forgetting time, per second
+    clip, th_g, max_gap, tau_rest = prm[3], prm[7], abs(prm[10]), prm[11]
     qtmp = np.empty(4)
     corr = np.empty(4)
     R = np.empty(9)
@@ -217,35 +212,18 @@ def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st:
                     _lp_init(gyr[i, k], st, _LPRG + 2 * k)
                     st[_GLP + k] = gyr[i, k]
         if a_ok:
-            _acc_step(acc[i], dt, st, tau_acc, tau_rest, th_a, rest_min, p0, v_rate, clip, mot_sig, vert_f, rest_sig,
-                      bias_on, qtmp, corr, R, H, e)  # fmt: skip
+            _acc_step(acc[i], dt, st, prm, qtmp, corr, R, H, e)
         _qmul(st[_QA : _QA + 4], st[_QG : _QG + 4], q_out[i])
 
 
 @_jit
-def _acc_step(
-    a,
-    dt,
-    st,
-    tau_acc,
-    tau_rest,
-    th_a,
-    rest_min,
-    p0,
-    v_rate,
-    clip,
-    mot_sig,
-    vert_f,
-    rest_sig,
-    bias_on,
-    qtmp,
-    corr,
-    R,
-    H,
-    e,
-) -> None:
+def _acc_step(a, dt, st, prm, qtmp, corr, R, H, e) -> None:
     """Accelerometer row: rest detection, low-pass in the gyro frame, inclination correction,
     bias update (see the module docstring)."""
+    tau_acc, clip, mot_sig, vert_f, rest_sig = prm[0], prm[3], prm[4], prm[5], prm[6]
+    th_a, rest_min, bias_on, tau_rest = prm[8], prm[9], prm[10] > 0, prm[11]
+    p0 = prm[1] * prm[1]
+    v_rate = 0.01 / prm[2]  # (0.1 deg/s)^2 per forgetting time, per second
     init = st[_ACC_INIT] == 0.0 or dt <= 0.0
     step = dt if dt > 0.0 else 0.005
     ca = _lp_coeffs(tau_acc, step)
