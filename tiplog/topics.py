@@ -16,7 +16,7 @@ from foxglove_schemas_protobuf import (
 from google.protobuf import descriptor_pool, message_factory
 from google.protobuf.message import Message
 
-from tiplog.v1 import device_pb2, fusion_pb2, recorder_pb2, robot_pb2, vision_pb2
+from tiplog.v1 import device_pb2, fusion_pb2, recorder_pb2, robot_pb2, system_pb2, vision_pb2
 
 TOPICS: dict[str, type[Message]] = {
     "device/gyro": device_pb2.Gyro,
@@ -37,6 +37,7 @@ TOPICS: dict[str, type[Message]] = {
     "bench/robot": robot_pb2.RobotState,
     "bench/tf": FrameTransforms_pb2.FrameTransforms,
     "recorder/status": recorder_pb2.RecorderStatus,
+    "system/supervisor": system_pb2.SupervisorStatus,
 }
 
 # Request/reply keys (queryables), not streams.
