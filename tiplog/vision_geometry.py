@@ -137,7 +137,7 @@ def line_from_normal(n: np.ndarray, fx: float, fy: float, cx: float, cy: float) 
 
 
 def junction_on_axis(
-    ray: np.ndarray, p0: np.ndarray, u: np.ndarray, rho_s: float, rim: bool = True
+    ray: np.ndarray, p0: np.ndarray, u: np.ndarray, rho_s: float, rim: bool = True, rim_fraction: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Axis point [m] (..., 3) of the shaft junction seen along `ray` (camera frame, through the
     camera centre), with its axis coordinate s from p0 [m] and the conditioning 1 - (d.u)^2.
@@ -145,8 +145,11 @@ def junction_on_axis(
     With rim=True the ray is taken to graze the end rim of the shaft on its side nearest the
     camera, as the silhouette's end does on the image's centre line: since p0 is the axis point
     closest to the camera, that rim runs along the line {p0 (1 - rho_s/|p0|) + s u}, parallel to
-    the axis, and the ray is intersected with it; rim=False intersects with the axis itself."""
+    the axis, and the ray is intersected with it; rim=False intersects with the axis itself. A
+    junction located off the centre line, on lines a fraction f of the radius to either side and
+    averaged, grazes the rim rim_fraction = sqrt(1 - f^2) of rho_s nearer the camera instead."""
     p0 = np.asarray(p0, dtype=float)
-    base = p0 * (1.0 - rho_s / np.linalg.norm(p0, axis=-1, keepdims=True)) if rim else p0
+    off = rho_s * rim_fraction
+    base = p0 * (1.0 - off / np.linalg.norm(p0, axis=-1, keepdims=True)) if rim else p0
     s, _, cond = ray_axis_intersection(ray, base, u)
     return p0 + s[..., None] * _unit(u), s, cond

@@ -20,6 +20,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from services.vision import edges
 from tiplog.camera_model import CameraModel
 
+# The junction is looked for along lines this far from the centre line, in half widths of the
+# shaft: outside the jaws (radius 1.7 of 2.59 mm, 0.66) and clear of the blurred edges, where
+# the dark shaft ends against the background at its end rim, whatever the jaws' shading.
+JUNCTION_LINES = (0.78, 0.83, 0.88)
+JUNCTION_RIM_FRACTION = float(np.sqrt(1.0 - np.mean(JUNCTION_LINES) ** 2))
+
 
 class LabelerParams(BaseModel):
     """Tuning of the labeler (pixel units are full-resolution image pixels)."""
@@ -79,8 +85,11 @@ def lines_from_blob(
     keep_fraction: float,
     min_points: int,
     junction_min_step: float,
+    junction_lines: tuple[float, ...] = JUNCTION_LINES,
 ) -> ShaftLabel:
-    """Lines and junction refined in `img` (a dark shaft on brighter ground) around a coarse blob."""
+    """Lines and junction refined in `img` (a dark shaft on brighter ground) around a coarse blob;
+    the junction is looked for along lines `junction_lines` half widths either side of the centre
+    line (a mask without the jaws, such as the network's, may use the middle)."""
     width = float(np.median(blob.s_hi - blob.s_lo)) + blob_step
     lo_pts, hi_pts = edges.edge_points(
         img, camera, img_step, img_offset, blob, blob_step, window_px, min_step, distal_margin_px=1.5 * width
@@ -100,7 +109,7 @@ def lines_from_blob(
     q = blob.point(mid_t, 0.0)
     lab.centre_px = q - (m[:2] @ q + m[2]) * m[:2]
     if not blob.distal_at_border:
-        j = _junction(img, camera, img_step, img_offset, blob, lab, width, junction_min_step)
+        j = _junction(img, camera, img_step, img_offset, blob, lab, width, junction_min_step, junction_lines)
         if j is not None:
             lab.junction_px = j
             lab.junction_visible = True
@@ -122,10 +131,13 @@ def _junction(
     lab: ShaftLabel,
     width: float,
     min_step: float,
+    lines: tuple[float, ...] = JUNCTION_LINES,
     sample_px: float = 0.5,
 ) -> np.ndarray | None:
-    """Junction (2,) in undistorted pixels: the strongest dark -> bright step along the centre
-    line near the blob's distal end (profiles at 5 offsets across the middle half, averaged)."""
+    """Junction (2,) in undistorted pixels, on the centre line: the mean position of the strongest
+    dark -> bright steps along lines on either side of the centre line (JUNCTION_LINES) near the
+    blob's distal end. Those lines meet the end rim at rho_s * JUNCTION_RIM_FRACTION nearer the
+    camera than the axis (tiplog.vision_geometry.junction_on_axis)."""
     m = lab.centre_line()
     g = np.array([m[1], -m[0]])
     if g @ blob.direction < 0:
@@ -133,17 +145,24 @@ def _junction(
     nrm = np.array([-g[1], g[0]])
     q0 = blob.centre - (m[:2] @ blob.centre + m[2]) * m[:2]  # blob centre onto the midline
     t_end = (blob.point(blob.t_max, 0.0) - q0) @ g
+    q_end = q0 + t_end * g
+    local = float(lab.line_left[:2] @ q_end + lab.line_left[2] + lab.line_right[:2] @ q_end + lab.line_right[2])
+    half = 0.5 * (local if np.isfinite(local) and local > 0 else width)
     t = np.arange(t_end - 3.0 * width - 8.0, t_end + 1.5 * width + 8.0, sample_px)
-    s = np.linspace(-0.25, 0.25, 5) * width
-    uv = q0 + t[None, :, None] * g + s[:, None, None] * nrm
-    prof = edges.sample(img, edges.undist_to_grid(camera, uv, img_step, img_offset)).mean(0)
-    d = np.zeros_like(prof)
-    d[1:-1] = prof[2:] - prof[:-2]
-    pos, peak = edges._subsample_peak(d[None, :])
-    if peak[0] < 2.0 * min_step * sample_px or not (2 < pos[0] < len(d) - 3):
+    t_found = []
+    for side in (-1.0, 1.0):
+        s = side * np.asarray(lines) * half
+        uv = q0 + t[None, :, None] * g + s[:, None, None] * nrm
+        prof = edges.sample(img, edges.undist_to_grid(camera, uv, img_step, img_offset)).mean(0)
+        d = np.zeros_like(prof)
+        d[1:-1] = prof[2:] - prof[:-2]
+        pos, peak = edges._subsample_peak(d[None, :])
+        if peak[0] < 2.0 * min_step * sample_px or not (2 < pos[0] < len(d) - 3):
+            return None
+        t_found.append(t[0] + pos[0] * sample_px)
+    if abs(t_found[0] - t_found[1]) > half:  # the two sides disagree: not a clean end
         return None
-    t_j = t[0] + pos[0] * sample_px
-    return q0 + t_j * g
+    return q0 + 0.5 * (t_found[0] + t_found[1]) * g
 
 
 def label_frame(img_rgb: np.ndarray, camera: CameraModel, params: LabelerParams | None = None) -> ShaftLabel:

@@ -117,6 +117,8 @@ class ShaftUNet(nn.Module):
         )
         self.last = UpBlock(d[4], 0, d[4])
         self.head = nn.Conv2d(d[4], 1, 1)
+        # the shaft covers a few per cent of the frame: start from that prior, not from p = 0.5
+        nn.init.constant_(self.head.bias, -3.0)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         f = self.encoder(x)

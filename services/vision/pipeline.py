@@ -19,7 +19,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.vision import edges
 from services.vision.gate import GateMeasures, GateParams, measures
-from services.vision.labeler import LabelerParams, ShaftLabel, label_frame, label_mask, lines_from_blob
+from services.vision.labeler import (
+    JUNCTION_RIM_FRACTION,
+    LabelerParams,
+    ShaftLabel,
+    label_frame,
+    label_mask,
+    lines_from_blob,
+)
 from services.vision.network import Segmenter
 from tiplog import vision_geometry as vg
 from tiplog.camera_model import CameraModel
@@ -63,7 +70,7 @@ def network_lines(prob: np.ndarray, camera: CameraModel, seg: Segmenter, p: Pipe
     return lines_from_blob(
         dark, camera, float(spec.step), spec.grid_offset, blob, float(spec.step),
         window_px=1.5 * spec.step, min_step=min_step, keep_fraction=p.labeler.keep_fraction,
-        min_points=p.labeler.min_edge_points, junction_min_step=min_step,
+        min_points=p.labeler.min_edge_points, junction_min_step=min_step, junction_lines=(0.15, 0.3, 0.45),
     )  # fmt: skip
 
 
@@ -133,7 +140,7 @@ class Pipeline:
             return
         u = vg.axis_direction_from_normals(n_l, n_r)
         ray = cam.pixel_to_ray(lab.junction_px, distorted=False)
-        j_axis, _, cond = vg.junction_on_axis(ray, p0, u, self.rho, rim=self.p.rim_junction)
+        j_axis, _, cond = vg.junction_on_axis(ray, p0, u, self.rho, self.p.rim_junction, JUNCTION_RIM_FRACTION)
         if not (np.isfinite(cond) and cond >= self.p.gate.min_junction_sin2 and j_axis[2] > 0):
             return
         px = cam.project(j_axis, distort=False)
