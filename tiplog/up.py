@@ -1,13 +1,15 @@
 """`tiplog up`: the whole system on one machine, as compose runs it on the cart.
 
 This process holds the Zenoh session in router mode that every service connects to (no
-router binary needed), starts each service as its own process, restarts one that dies, and
-stops them all on Ctrl-C or SIGTERM.
+router binary needed), starts each service as its own process under `tiplog.supervisor`
+(restarted with back-off when it dies, every change reported on `system/supervisor`), prints
+where to look, and stops them all on Ctrl-C, SIGTERM or after `--duration`.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import logging
 import os
@@ -25,6 +27,7 @@ import zenoh
 from tiplog.bus import Bus, BusConfig
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.config import load_section
+from tiplog.supervisor import Child, Supervisor
 from tiplog.userio import UserError, input_file
 
 log = logging.getLogger("tiplog.up")
@@ -98,6 +101,21 @@ def _spawn(name: str, endpoint: str, config: str | None, sets: list[str] = ()) -
     return subprocess.Popen(cmd, env=os.environ.copy())
 
 
+def banner(names: list[str], config: str | None) -> str:
+    """The short block a user sees: where to look, where recordings go, how to stop."""
+    dash = load_section(config, "dashboard") if config else {}
+    rec = load_section(config, "recorder") if config else {}
+    lines = ["", "tiplog is starting: " + ", ".join(names)]
+    if "dashboard" in names:
+        lines.append(f"  dashboard   http://{dash.get('host', '127.0.0.1')}:{dash.get('port', 8000)}")
+    if "recorder" in names:
+        out_dir = str(rec.get("out_dir", "recordings"))
+        shown = out_dir if Path(out_dir).is_absolute() else f"./{out_dir.removeprefix('./').rstrip('/')}/"
+        lines.append(f"  recordings  {shown}  (autostart: {rec.get('autostart', 'device')}; `tiplog info FILE`)")
+    lines.append("  stop        Ctrl-C (the recording in progress is closed and stays valid)")
+    return "\n".join(lines) + "\n"
+
+
 def run(args: argparse.Namespace) -> int:
     names = [s.strip() for s in args.services.split(",") if s.strip()]
     unknown = sorted(set(names) - set(DEFAULT_SERVICES))
@@ -123,38 +141,24 @@ def run(args: argparse.Namespace) -> int:
             "or a standalone tiplog process (replay, record) holds it: stop it, or give another --listen"
         ) from None
     with bus:
-        # Fusion needs the calibration at start: with the bench's file it waits for the bench.
-        waiting = {"fusion"} & set(names) if calibration is not None and not calibration.exists() else set()
-        procs = {n: _spawn(n, args.listen, args.config, sets[n]) for n in names if n not in waiting}
+        status_pub = bus.publisher("system/supervisor")
+        children = [Child(n, functools.partial(_spawn, n, args.listen, args.config, sets[n])) for n in names]
+        for c in children:
+            # Fusion needs the calibration at start: with the bench's file it waits for the bench.
+            if c.name == "fusion" and calibration is not None:
+                c.ready = calibration.exists
+        sup = Supervisor(children, publish=status_pub.put, router_endpoint=args.listen)
         if calibration is not None:
             log.info("calibration file: %s", calibration)
-        log.info("started %s; router on %s", ", ".join(names), args.listen)
+        log.info("starting %s; router on %s", ", ".join(names), args.listen)
+        print(banner(names, args.config), flush=True)
         deadline = time.monotonic() + args.duration if args.duration else None
-        restarts = dict.fromkeys(names, 0)
-        while not stop.wait(0.5):
+        sup.poll()
+        while not stop.wait(0.2):
             if deadline and time.monotonic() > deadline:
                 break
-            if waiting and calibration is not None and calibration.exists():
-                procs.update({n: _spawn(n, args.listen, args.config, sets[n]) for n in waiting})
-                waiting = set()
-            for n, p in procs.items():
-                rc = p.poll()
-                if rc is not None:
-                    restarts[n] += 1
-                    delay = min(30.0, 0.5 * 2 ** min(restarts[n], 6))
-                    log.warning("%s exited with %s; restarting in %.1f s", n, rc, delay)
-                    if stop.wait(delay):
-                        break
-                    procs[n] = _spawn(n, args.listen, args.config, sets[n])
+            sup.poll()
         log.info("stopping; alive: %s", ", ".join(sorted(bus.alive(0.3))) or "none")
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        end = time.monotonic() + 5.0
-        for p in procs.values():
-            try:
-                p.wait(timeout=max(0.1, end - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
+        sup.stop()
     shutil.rmtree(run_dir, ignore_errors=True)
     return 0

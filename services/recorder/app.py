@@ -19,7 +19,7 @@ from services.recorder.config import RecorderConfig
 from services.recorder.mcap_file import Opener, open_file
 from services.recorder.recorder import STATUS_TOPIC, DiskUsage, Recorder
 from tiplog import topics
-from tiplog.bus import Bus
+from tiplog.bus import Bus, SampleInfo
 from tiplog.config import dump
 from tiplog.service import ServiceContext, run_service
 from tiplog.v1 import recorder_pb2
@@ -72,7 +72,15 @@ def serve(
 
     # Subscribed before the writer starts: the first RECORDING status means the subscription
     # is already declared (a publisher that sees it may start at once).
-    bus.subscribe_raw(config.key_expr, rec.on_sample)
+    exact = {t for t in config.exclude_topics if not t.endswith("/")}
+    prefixes = tuple(t for t in config.exclude_topics if t.endswith("/"))
+
+    def on_sample(payload: bytes, info: SampleInfo) -> None:
+        if info.topic in exact or (prefixes and info.topic.startswith(prefixes)):
+            return
+        rec.on_sample(payload, info)
+
+    bus.subscribe_raw(config.key_expr, on_sample if config.exclude_topics else rec.on_sample)
     rec.start_thread()
     bus.queryable(topics.RECORDER_COMMAND, on_command)
     publish_status(rec.status())

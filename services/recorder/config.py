@@ -20,6 +20,9 @@ class RecorderConfig(ServiceConfig):
     autostart: Literal["never", "device", "always"] = "device"
     # Key expression under the bus prefix that is recorded.
     key_expr: str = "**"
+    # Topics left out ("camera/image"; "camera/" leaves out every camera/* topic): the demo
+    # records everything but the raw frames (41 MB/s), whose compressed preview is kept.
+    exclude_topics: list[str] = Field(default_factory=list)
     # lz4 by default: camera frames are noise-like and dominate the volume; zstd costs several
     # times the CPU for little gain on them (see benchmarks/recorder_throughput.py).
     compression: Literal["zstd", "lz4", "none"] = "lz4"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from services.bench.app import BenchConfig, write_calibration
 from tiplog.up import _config_fields, calibration_sets
 from tiplog.userio import UserError
 
@@ -23,10 +24,17 @@ def test_with_the_bench_its_file_goes_to_every_reader(tmp_path):
 
 def test_a_users_file_replaces_the_bench_one(tmp_path):
     mine = tmp_path / "mine.yaml"
-    mine.write_text("format: tiplog-calibration\n")
+    write_calibration(BenchConfig(scenario="static", calibration_file=str(mine)))
     sets, path = calibration_sets(["bench", "recorder"], str(mine), tmp_path)
     assert path == mine.resolve() and sets["bench"] == []
     assert sets["recorder"] == [f"calibration_file={mine.resolve()}"]
+
+
+def test_a_file_that_is_not_a_calibration_is_refused_by_name(tmp_path):
+    notes = tmp_path / "notes.yaml"
+    notes.write_text("format: tiplog-calibration\n")
+    with pytest.raises(UserError, match="notes.yaml: expected a mapping of calibration fields"):
+        calibration_sets(["recorder"], str(notes), tmp_path)
 
 
 def test_without_bench_or_file_nothing_is_passed(tmp_path):

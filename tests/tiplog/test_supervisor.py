@@ -1,0 +1,98 @@
+"""The supervisor of `tiplog up`: back-off on quick deaths, reset after a stable run, services
+waiting for what they need, every change reported; real child processes, a stepped clock."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from tiplog.supervisor import Child, Supervisor
+from tiplog.v1 import system_pb2
+
+R = system_pb2.ServiceRunState
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def exiting(code: int):
+    return lambda: subprocess.Popen([sys.executable, "-c", f"raise SystemExit({code})"])
+
+
+def sleeping():
+    return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+
+
+def test_quick_deaths_back_off_doubling_and_are_reported():
+    clock, published = Clock(), []
+    c = Child("fusion", exiting(3))
+    sup = Supervisor([c], publish=published.append, clock=clock, first_delay_s=0.5, max_delay_s=2.0)
+    delays = []
+    for _ in range(4):
+        sup.poll()  # starts (or restarts) it
+        assert c.state == R.SERVICE_RUN_STATE_RUNNING
+        c.proc.wait(30)
+        clock.t += 0.1
+        sup.poll()  # notices the exit
+        assert c.state == R.SERVICE_RUN_STATE_RESTARTING and c.last_exit_code == 3
+        delays.append(c.restart_at - clock.t)
+        clock.t = c.restart_at - 0.01
+        sup.poll()
+        assert c.state == R.SERVICE_RUN_STATE_RESTARTING  # not before its time
+        clock.t += 0.01
+    assert delays == [0.5, 1.0, 2.0, 2.0]
+    events = [s.event for s in published if s.event]
+    assert "fusion exited with 3 after 0.1 s; restarting in 1.0 s" in events
+    assert events.count("fusion started") == 1
+    assert any(e.startswith("fusion restarted (restart 3)") for e in events)
+    last = published[-1].services[0]
+    assert last.service == "fusion" and last.restarts == 3
+
+
+def test_a_stable_run_resets_the_back_off():
+    clock = Clock()
+    c = Child("vision", exiting(1))
+    sup = Supervisor([c], clock=clock, stable_after_s=60.0)
+    for _ in range(3):  # three quick deaths: 0.5, 1, 2 s
+        sup.poll()
+        c.proc.wait(30)
+        clock.t += 0.1
+        sup.poll()
+        clock.t = c.restart_at
+    sup.poll()
+    c.proc.wait(30)
+    clock.t += 61.0  # this run lasted a minute
+    sup.poll()
+    assert c.restart_at - clock.t == 0.5
+
+
+def test_a_service_waits_for_what_it_needs_and_stop_ends_it():
+    clock, ready = Clock(), [False]
+    c = Child("fusion", sleeping, ready=lambda: ready[0])
+    sup = Supervisor([c], clock=clock)
+    sup.poll()
+    assert c.state == R.SERVICE_RUN_STATE_WAITING and c.proc is None
+    ready[0] = True
+    sup.poll()
+    proc = c.proc
+    assert c.state == R.SERVICE_RUN_STATE_RUNNING and proc.poll() is None
+    assert sup.status().services[0].pid == proc.pid
+    sup.stop(grace_s=10)
+    assert proc.poll() is not None and c.state == R.SERVICE_RUN_STATE_STOPPED
+
+
+def test_a_killed_service_is_named_by_its_signal():
+    clock, published = Clock(), []
+    c = Child("recorder", sleeping)
+    sup = Supervisor([c], publish=published.append, clock=clock)
+    sup.poll()
+    c.proc.kill()
+    c.proc.wait(30)
+    sup.poll()
+    assert c.last_exit_code == -9
+    assert any("recorder killed by SIGKILL" in s.event for s in published)

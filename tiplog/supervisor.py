@@ -1,0 +1,140 @@
+"""The supervisor of `tiplog up`: each service as its own process, restarted with back-off when
+it dies, and the state of every one reported on the bus (`system/supervisor`).
+
+Back-off: a service that dies waits 0.5 s before its first restart, doubling per quick death up
+to 30 s; one that ran for `stable_after_s` starts again from 0.5 s. Times are host monotonic
+seconds; stamps on the bus are `tiplog.clock.now_ns`.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from tiplog.clock import now_ns
+from tiplog.v1 import system_pb2
+
+log = logging.getLogger("tiplog.up")
+
+R = system_pb2.ServiceRunState
+
+
+@dataclass
+class Child:
+    """One supervised service."""
+
+    name: str
+    spawn: Callable[[], subprocess.Popen]
+    ready: Callable[[], bool] = lambda: True  # may it start now (e.g. its calibration exists)
+    proc: subprocess.Popen | None = None
+    state: int = R.SERVICE_RUN_STATE_WAITING
+    restarts: int = 0
+    quick_deaths: int = 0
+    started_at: float = 0.0
+    restart_at: float = 0.0
+    last_exit_code: int = 0
+    last_exit_stamp_ns: int = 0
+
+
+@dataclass
+class Supervisor:
+    """Starts, watches and restarts `children`; `publish(status)` reports every change and
+    `tick()` once a second. Call `poll()` often (every 0.1-0.5 s) from one thread."""
+
+    children: list[Child]
+    publish: Callable[[system_pb2.SupervisorStatus], None] = lambda _s: None
+    router_endpoint: str = ""
+    first_delay_s: float = 0.5
+    max_delay_s: float = 30.0
+    stable_after_s: float = 60.0
+    clock: Callable[[], float] = time.monotonic
+    _last_report: float = field(default=-1e9, init=False)
+
+    def poll(self) -> None:
+        """One round: start what may start, notice exits, restart what is due."""
+        now = self.clock()
+        for c in self.children:
+            if c.state == R.SERVICE_RUN_STATE_WAITING and c.ready():
+                self._start(c, now, "started")
+            elif c.state == R.SERVICE_RUN_STATE_RUNNING and c.proc is not None:
+                rc = c.proc.poll()
+                if rc is not None:
+                    self._exited(c, rc, now)
+            elif c.state == R.SERVICE_RUN_STATE_RESTARTING and now >= c.restart_at:
+                c.restarts += 1
+                self._start(c, now, f"restarted (restart {c.restarts})")
+        if now - self._last_report >= 1.0:
+            self.report("")
+
+    def _start(self, c: Child, now: float, what: str) -> None:
+        c.proc = c.spawn()
+        c.state = R.SERVICE_RUN_STATE_RUNNING
+        c.started_at = now
+        log.info("%s %s (pid %d)", c.name, what, c.proc.pid)
+        self.report(f"{c.name} {what}")
+
+    def _exited(self, c: Child, rc: int, now: float) -> None:
+        ran_s = now - c.started_at
+        c.quick_deaths = 0 if ran_s >= self.stable_after_s else c.quick_deaths + 1
+        delay = min(self.max_delay_s, self.first_delay_s * 2 ** max(0, c.quick_deaths - 1))
+        c.state = R.SERVICE_RUN_STATE_RESTARTING
+        c.restart_at = now + delay
+        c.last_exit_code = rc
+        c.last_exit_stamp_ns = now_ns()
+        c.proc = None
+        how = (
+            f"killed by {signal.Signals(-rc).name}"
+            if rc < 0 and -rc in signal.Signals._value2member_map_
+            else f"exited with {rc}"
+        )
+        event = f"{c.name} {how} after {ran_s:.1f} s; restarting in {delay:.1f} s"
+        log.warning("%s", event)
+        self.report(event)
+
+    def status(self, event: str = "") -> system_pb2.SupervisorStatus:
+        now = self.clock()
+        st = system_pb2.SupervisorStatus(router_endpoint=self.router_endpoint, event=event)
+        st.header.stamp_ns = now_ns()
+        for c in self.children:
+            st.services.append(
+                system_pb2.ServiceRun(
+                    service=c.name,
+                    state=c.state,
+                    pid=c.proc.pid if c.proc is not None else 0,
+                    restarts=c.restarts,
+                    last_exit_code=c.last_exit_code,
+                    last_exit_stamp_ns=c.last_exit_stamp_ns,
+                    restart_in_s=max(0.0, c.restart_at - now) if c.state == R.SERVICE_RUN_STATE_RESTARTING else 0.0,
+                    uptime_s=now - c.started_at if c.state == R.SERVICE_RUN_STATE_RUNNING else 0.0,
+                )
+            )
+        return st
+
+    def report(self, event: str) -> None:
+        self._last_report = self.clock()
+        try:
+            self.publish(self.status(event))
+        except Exception as e:  # the report must never stop the supervision
+            log.debug("supervisor status not published: %s", e)
+
+    def stop(self, grace_s: float = 5.0) -> None:
+        """SIGTERM every running service, SIGKILL what is left after `grace_s`."""
+        running = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
+        for c in running:
+            c.proc.send_signal(signal.SIGTERM)
+        end = time.monotonic() + grace_s
+        for c in running:
+            try:
+                c.proc.wait(timeout=max(0.1, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("%s did not stop within %.0f s: killed", c.name, grace_s)
+                c.proc.kill()
+                c.proc.wait()
+        for c in self.children:
+            c.state = R.SERVICE_RUN_STATE_STOPPED
+            c.proc = None
+        self.report("stopped")
