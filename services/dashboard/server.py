@@ -39,6 +39,12 @@ LOGIN_PAGE = """<!doctype html>
  id="token"></label> <button type="submit" id="sign-in">Sign in</button></form></body></html>
 """
 
+
+def same_origin(origin: str, conn: Any) -> bool:
+    """True when an Origin header names the host the request was sent to."""
+    return origin.split("://", 1)[-1] == conn.headers.get("host", "")
+
+
 _bearer = HTTPBearer(auto_error=False, description="viewer or operator token")
 _cookie = APIKeyCookie(name=COOKIE, auto_error=False, description="token set by POST /login")
 
@@ -90,12 +96,24 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
 
     @app.middleware("http")
     async def security_headers(request: Request, call_next: Any) -> Response:
-        response = await call_next(request)
+        origin_hdr = request.headers.get("origin")
+        if request.method not in ("GET", "HEAD", "OPTIONS") and origin_hdr and not same_origin(origin_hdr, request):
+            # Another site's page posting with the operator's cookie (or to a token-less loopback
+            # dashboard): refused before any route runs.
+            response: Response = Response("cross-site request refused", status_code=403, media_type="text/plain")
+        else:
+            response = await call_next(request)
         response.headers["Content-Security-Policy"] = CSP
         response.headers["X-Content-Type-Options"] = "nosniff"
         response.headers["Referrer-Policy"] = "no-referrer"
         response.headers["Cache-Control"] = "no-store"
         return response
+
+    @app.post("/logout", include_in_schema=False)
+    def logout() -> Response:
+        resp = RedirectResponse("/", status_code=303)
+        resp.delete_cookie(COOKIE, path="/")
+        return resp
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
     def index(request: Request) -> Response:
@@ -160,8 +178,7 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
     async def ws(websocket: WebSocket) -> None:
         role = role_of(websocket.headers.get("authorization"), websocket.cookies.get(COOKIE))
         origin_hdr = websocket.headers.get("origin")
-        host = websocket.headers.get("host", "")
-        if origin_hdr and origin_hdr.split("://", 1)[-1] != host:
+        if origin_hdr and not same_origin(origin_hdr, websocket):
             role = Role.NONE  # another site's page: cookies must not open the stream
         if role == Role.NONE:
             await websocket.close(code=1008)

@@ -160,3 +160,14 @@ def test_preview_served_as_published_and_only_raster_formats(served):
         r = c.get("/api/preview")
         assert r.status_code == 200 and r.content == jpeg and r.headers["content-type"] == "image/jpeg"
         assert r.headers["x-content-type-options"] == "nosniff"
+
+
+def test_cross_site_posts_are_refused_and_sign_out_clears_the_cookie(served):
+    with served.client(OPERATOR) as c:
+        r = c.post("/api/recorder/mark", json={"label": "x"}, headers={"Origin": "http://evil.example"})
+        assert r.status_code == 403 and r.text == "cross-site request refused"
+        host = served.url.split("://", 1)[1]
+        same = c.post("/api/recorder/mark", json={"label": "x"}, headers={"Origin": f"http://{host}"})
+        assert same.status_code == 503  # past the check: no recorder on this bus
+        out = c.post("/logout")
+        assert out.status_code == 303 and 'tiplog_token=""' in out.headers["set-cookie"]
