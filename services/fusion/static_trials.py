@@ -1,0 +1,182 @@
+"""Per-trial estimates of the translation and rotation protocols: the static-trial filter run
+over a session, and for each trial the tip displacement and the relative rotation between its
+two stationary windows (W_pre, W_post), as the paper's metric takes them.
+
+The estimator reads the device and vision topics and the calibration only; from the session's
+`trials` metadata it takes the protocol timing (window bounds) and labels, never the poses.
+Window times there are milliseconds on the session clock (the header stamps' clock).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.fusion.static_filter import StaticFilter, StaticParams, initial_heading
+from tiplog import mcap_io
+from tiplog.calibration import Calibration
+from tiplog.geometry import so3_log
+
+TOF_VALID = 1
+# Timing and labels only: every other key of a trial (the bench's commanded or true poses) is
+# left unread.
+_TRIAL_KEYS = ("index", "kind", "axis", "magnitude", "unit", "pre_start", "pre_end", "post_start", "post_end")
+
+
+@dataclass(frozen=True)
+class TrialWindows:
+    index: int
+    kind: str
+    axis: str
+    magnitude: float
+    unit: str
+    pre_ns: tuple[int, int]
+    post_ns: tuple[int, int]
+
+
+@dataclass
+class TrialEstimate:
+    """One trial: tip displacement post - pre [m] in base and camera axes, and the relative
+    rotation R_post R_pre^T (base axes) with its rotation vector [deg]."""
+
+    windows: TrialWindows
+    tip_pre_base_m: np.ndarray
+    tip_post_base_m: np.ndarray
+    R_pre: np.ndarray
+    R_post: np.ndarray
+    displacement_base_m: np.ndarray
+    displacement_camera_m: np.ndarray
+    R_rel: np.ndarray
+    rel_rotvec_deg: np.ndarray
+
+
+def trial_windows(metadata: dict[str, dict[str, str]]) -> list[TrialWindows]:
+    """Protocol timing from a session's `trials` metadata; ValueError naming what is missing."""
+    rec = metadata.get("trials")
+    if rec is None or "json" not in rec:
+        raise ValueError("session has no 'trials' metadata (protocol timing)")
+    out = []
+    for t in json.loads(rec["json"]):
+        d = {k: t.get(k) for k in _TRIAL_KEYS}
+        if d["pre_start"] is None or d["post_end"] is None:
+            continue
+        ms = 1_000_000
+        out.append(
+            TrialWindows(
+                int(d["index"]),
+                str(d["kind"]),
+                str(d["axis"]),
+                float(d["magnitude"]),
+                str(d["unit"]),
+                (int(d["pre_start"] * ms), int(d["pre_end"] * ms)),
+                (int(d["post_start"] * ms), int(d["post_end"] * ms)),
+            )
+        )
+    return out
+
+
+def _events(path: str | Path, calib: Calibration) -> list[tuple[int, int, Any]]:
+    """(latency-corrected time [ns], kind order, payload), sorted; kinds 0 gyro, 1 accel,
+    2 tof, 3 vision."""
+    ev: list[tuple[int, int, Any]] = []
+    lat = {k: calib.latency_ns(k) for k in ("gyro", "accel", "tof", "camera")}
+    for r in mcap_io.read_messages(path, ["device/gyro", "device/accel", "device/tof", "vision/observation"]):
+        m = r.message
+        if r.topic == "device/gyro":
+            v = m.rate_radps
+            ev.append((m.header.stamp_ns - lat["gyro"], 0, np.array([v.x, v.y, v.z])))
+        elif r.topic == "device/accel":
+            v = m.specific_force_mps2
+            ev.append((m.header.stamp_ns - lat["accel"], 1, np.array([v.x, v.y, v.z])))
+        elif r.topic == "device/tof":
+            if m.status == TOF_VALID and 20.0 <= m.range_raw_mm <= 400.0:
+                ev.append((m.header.stamp_ns - lat["tof"], 2, m.range_raw_mm * 1e-3))
+        elif m.accepted:
+            nl, nr, ray = m.n_left, m.n_right, m.junction_ray
+            obs = (
+                np.array([nl.x, nl.y, nl.z]),
+                np.array([nr.x, nr.y, nr.z]),
+                np.array([ray.x, ray.y, ray.z]) if m.junction_visible else None,
+            )
+            ev.append((m.header.stamp_ns - lat["camera"], 3, obs))
+    ev.sort(key=lambda e: (e[0], e[1]))
+    return ev
+
+
+def _mean_rotation(Rs: list[np.ndarray]) -> np.ndarray:
+    """Chordal mean of rotation matrices (projection of the arithmetic mean onto SO(3))."""
+    U, _, Vt = np.linalg.svd(np.mean(Rs, axis=0))
+    D = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
+    return U @ D @ Vt
+
+
+def estimate_trials(
+    path: str | Path,
+    calibration: Calibration | None = None,
+    params: StaticParams | None = None,
+    window_tail: float = 0.5,
+) -> tuple[list[TrialEstimate], dict[str, int]]:
+    """Run the static-trial filter over a translation or rotation session. Each window's
+    estimate is the mean over its last `window_tail` fraction (the causal filter has then seen
+    most of the window). Returns the per-trial estimates and the filter's update counts."""
+    md = mcap_io.read_metadata(path)
+    calib = calibration or Calibration.from_mcap_metadata(md, where=str(path))
+    trials = trial_windows(md)
+    if not trials:
+        raise ValueError(f"{path}: no complete trial in the session")
+    ev = _events(path, calib)
+    t_ev = np.array([e[0] for e in ev], dtype=np.int64)
+    filt = StaticFilter(calib, params)
+    a0, a1 = trials[0].pre_ns
+    in_w = (t_ev >= a0) & (t_ev <= a1)
+    f_mean = np.mean([e[2] for e, w in zip(ev, in_w, strict=True) if w and e[1] == 1], axis=0)
+    normals = np.array([[e[2][0], e[2][1]] for e, w in zip(ev, in_w, strict=True) if w and e[1] == 3])
+    if len(normals) == 0:
+        raise ValueError(f"{path}: no accepted vision frame in the first stationary window; heading unknown")
+    R0, _ = initial_heading(calib, f_mean, normals)
+    tofs = [e[2] for e, w in zip(ev, in_w, strict=True) if w and e[1] == 2]
+    L0 = filt.depth_from_tof(R0, float(np.median(tofs))) if tofs else 0.14
+    s = filt.new_state(a0, R0, L0)
+    # windows as (start, end, trial index, which); collect states at gyro samples inside
+    bounds = sorted(
+        [(w.pre_ns[0], w.pre_ns[1], i, 0) for i, w in enumerate(trials)]
+        + [(w.post_ns[0], w.post_ns[1], i, 1) for i, w in enumerate(trials)]
+    )
+    got: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
+    b = 0
+    start = int(np.searchsorted(t_ev, a0))
+    for t, kind, payload in ev[start:]:
+        while b < len(bounds) and t > bounds[b][1]:
+            b += 1
+        if b >= len(bounds):
+            break
+        lo, hi, i, which = bounds[b]
+        filt.still = lo <= t <= hi
+        if kind == 0:
+            filt.on_gyro(s, t, payload)
+            tail_lo = hi - window_tail * (hi - lo)
+            if t >= tail_lo and filt.still:
+                got.setdefault((i, which), []).append((s.tip(calib.rcm_base_m), s.R.copy()))
+        else:
+            filt.propagate(s, t)
+            if kind == 1:
+                filt.update_accel(s, payload)
+            elif kind == 2:
+                filt.update_tof(s, payload)
+            else:
+                filt.update_vision(s, *payload)
+    A = calib.R_base_camera.T
+    out = []
+    for i, w in enumerate(trials):
+        pre, post = got.get((i, 0)), got.get((i, 1))
+        if not pre or not post:
+            continue
+        tp, tq = np.mean([x[0] for x in pre], 0), np.mean([x[0] for x in post], 0)
+        Rp, Rq = _mean_rotation([x[1] for x in pre]), _mean_rotation([x[1] for x in post])
+        Rrel = Rq @ Rp.T
+        out.append(TrialEstimate(w, tp, tq, Rp, Rq, tq - tp, A @ (tq - tp), Rrel, np.degrees(so3_log(Rrel))))
+    return out, dict(s.counts)
