@@ -9,7 +9,6 @@ subscriber's callback: one corrupt message must not take a service down.
 
 from __future__ import annotations
 
-import json
 import logging
 import queue
 import random
@@ -18,21 +17,22 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Generic, Literal, TypeVar
+from typing import Any, Generic, TypeVar
 
 import zenoh
 from google.protobuf.message import DecodeError, Message
-from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from tiplog import topics
+from tiplog.bus_config import DEFAULT_ENDPOINT, BusConfig
 from tiplog.clock import now_ns
+
+__all__ = ["DEFAULT_ENDPOINT", "Bus", "BusConfig", "Publisher", "SampleInfo", "Subscriber"]
 
 log = logging.getLogger(__name__)
 
 M = TypeVar("M", bound=Message)
 
 _ATTACH = struct.Struct("<QqI")
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 # How long a process may look for its router before it says, in one line, that none answers.
 NOTICE_AFTER_S = 2.0
 
@@ -51,57 +51,6 @@ def _loopback_tcp(endpoints: list[str]) -> str | None:
         if e.startswith(("tcp/127.", "tcp/localhost:", "tcp/[::1]:")):
             return e
     return None
-
-
-class BusConfig(BaseModel):
-    """Where the Zenoh session connects, listens, and which key prefix it uses."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    mode: Literal["peer", "client", "router"] = "peer"
-    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
-    # Peers learn of each other through the router (gossip) but exchange data directly, so a
-    # peer must listen somewhere: an ephemeral loopback port by default. A service on another
-    # machine (or in its own container) uses mode "client" and reaches everything through
-    # the router it connects to.
-    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:0"])
-    prefix: str = "tiplog/"
-    multicast_scouting: bool = False
-    # Shared memory for large payloads between processes on one host (zenoh default: on).
-    shared_memory: bool = True
-    # A client cannot open until its router answers: retry this long, None = until stopped
-    # (compose starts the router and the services together; a cart boots them in any order).
-    # Either way the process says within NOTICE_AFTER_S that nothing answers, and where.
-    open_timeout_s: float | None = Field(None, ge=0.0, le=86400.0)
-    # Peer mode only: when nothing listens at the first loopback endpoint of `connect`, listen
-    # there too, so tiplog processes started alone on one machine (`tiplog replay` and
-    # `tiplog record run` in two terminals) find each other without `tiplog up`.
-    standalone: bool = False
-
-    @field_validator("prefix")
-    @classmethod
-    def _prefix_shape(cls, v: str) -> str:
-        if not v or not v.endswith("/") or v.startswith("/") or any(c in v for c in "*$#?"):
-            raise ValueError("must be a key prefix ending in '/', e.g. 'tiplog/'")
-        return v
-
-    @field_validator("connect", "listen")
-    @classmethod
-    def _endpoints(cls, v: list[str]) -> list[str]:
-        for e in v:
-            if "/" not in e or e.split("/", 1)[0] not in ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws"):
-                raise ValueError(f"endpoint {e!r} is not of the form 'tcp/HOST:PORT'")
-        return v
-
-    def zenoh_config(self) -> zenoh.Config:
-        """The zenoh.Config this bus configuration stands for."""
-        conf = zenoh.Config()
-        conf.insert_json5("mode", json.dumps(self.mode))
-        conf.insert_json5("connect/endpoints", json.dumps(self.connect))
-        conf.insert_json5("listen/endpoints", json.dumps(self.listen))
-        conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
-        conf.insert_json5("transport/shared_memory/enabled", json.dumps(self.shared_memory))
-        return conf
 
 
 @dataclass(frozen=True, slots=True)

@@ -50,7 +50,7 @@ def register(p: argparse.ArgumentParser) -> None:
 
 
 # Services that read the calibration file (`calibration_file` in their configuration).
-CALIBRATION_READERS = ("fusion", "recorder")
+CALIBRATION_READERS = ("fusion", "recorder", "dashboard")
 
 
 def _config_fields(name: str) -> set[str]:
