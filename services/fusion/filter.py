@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 
+from services.fusion import kernels
 from services.fusion.init import initial_rotation
 from services.fusion.params import SENSORS, Params
 from tiplog.calibration import Calibration
@@ -73,7 +74,8 @@ class State:
         return s
 
     def finite(self) -> bool:
-        return bool(np.isfinite(self.p).all() and np.isfinite(self.R).all() and np.isfinite(self.P).all())
+        # a NaN anywhere reaches the position block of P within one step
+        return math.isfinite(self.p[0] + self.p[1] + self.p[2] + self.R[0, 0] + self.P[0, 0] + self.P[2, 2])
 
 
 def _bump(d: dict, key: str, by: float = 1.0) -> None:
@@ -103,14 +105,12 @@ class TrackingFilter:
         self.q_ba = p.accel_bias_rw_mps2_rts**2
         self.q_brho = (p.tof_offset_rw_mm_rts * 1e-3) ** 2
         self.rcm_var = (p.rcm_sigma_mm * 1e-3) ** 2
+        self._rcm_r = np.full(2, self.rcm_var)
         self.tof_var = (p.tof_sigma_mm * 1e-3) ** 2
         self.plane_var = (p.vision_plane_sigma_deg * DEG) ** 2
         self.offset_var = (p.vision_offset_sigma_mm * 1e-3) ** 2
         self.ray_var = (p.vision_ray_sigma_mm * 1e-3) ** 2
         self.grav_period_ns = int(1e9 / p.gravity_rate_hz) if p.gravity_rate_hz > 0 else None
-        self._F = np.eye(N)
-        self._I3 = np.eye(3)
-        self._diag = np.diag_indices(N)
         Q = np.zeros(N)
         if self.imu:
             Q[IV] = self.q_acc
@@ -190,32 +190,11 @@ class TrackingFilter:
         if dt <= 0.0:
             return
         s.t_ns = int(t_ns)
-        R = s.R
         prm = self.prm
-        F = self._F
-        Q = self._Q
-        if self.imu:
-            w_tool = self.R_ti @ (s.w_imu - s.bg)
-            f_tool = self.R_ti @ (s.f_imu - s.ba)
-            r = R @ self.r_imu_tip_tool
-            w_b = R @ w_tool
-            a = R @ f_tool + G_BASE + cross(R @ s.alpha_tool, r) + cross(w_b, cross(w_b, r))
-            wn = math.sqrt(float(w_tool @ w_tool))
-            F[IV, ITH] = -(R @ skew(f_tool)) * dt
-            F[IV, IBA] = -(R @ self.R_ti) * dt
-            F[ITH, ITH] = exp_so3(-w_tool * dt)
-            F[ITH, IBG] = -self.R_ti * dt
-            bg_rw = (prm.gyro_bias_rw_dps_rts + prm.gyro_bias_rw_dps_rts_per_radps * wn) * DEG
-            Q[IBG] = bg_rw * bg_rw
-            s.R = R @ exp_so3(w_tool * dt)
-        else:
-            a = np.zeros(3)
-        s.p += s.v * dt + 0.5 * dt * dt * a
-        s.v += a * dt
-        F[IP, IV] = self._I3 * dt
-        P = F @ s.P @ F.T
-        P[self._diag] += Q * dt
-        s.P = P
+        kernels.propagate(
+            s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
+            self._Q, prm.gyro_bias_rw_dps_rts * DEG, prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
+        )  # fmt: skip
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
         self.propagate(s, t_ns)
@@ -247,45 +226,19 @@ class TrackingFilter:
     # ------------------------------------------------------------------ updates
     def _update(self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
                 freeze_brho: bool = False) -> bool:  # fmt: skip
-        PHt = s.P @ H.T
-        S = H @ PHt
-        S[np.diag_indices(len(y))] += r_var
-        try:
-            Sinv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
-            _bump(s.counts, f"rejected:{name}:singular")
-            return False
-        nis = float(y @ Sinv @ y)
-        if not nis <= chi2:
+        status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, freeze_brho)
+        if status:
             _bump(s.counts, f"rejected:{name}:innovation")
             return False
         _bump(s.counts, f"updates:{name}")
         _bump(s.nis, name, nis)
-        K = PHt @ Sinv
-        if freeze_brho:
-            K[IBR] = 0.0
-            IKH = np.eye(N) - K @ H
-            P = IKH @ s.P @ IKH.T + (K * r_var) @ K.T
-        else:
-            P = s.P - K @ PHt.T
-        s.P = 0.5 * (P + P.T)
-        dx = K @ y
-        s.p += dx[IP]
-        s.v += dx[IV]
-        s.R = s.R @ exp_so3(dx[ITH])
-        s.bg += dx[IBG]
-        s.ba += dx[IBA]
-        s.brho += float(dx[IBR])
+        s.brho += kernels.inject(s.p, s.v, s.R, s.bg, s.ba, dx)
         return True
 
     def update_rcm(self, s: State) -> bool:
         """The shaft line through the registered RCM: (R^T (r - p))_xy = 0, 2-D."""
-        Rt = s.R.T
-        d = Rt @ (self.rcm - s.p)
-        H = np.zeros((2, N))
-        H[:, IP] = -Rt[:2]
-        H[:, ITH] = skew(d)[:2]
-        return self._update(s, H, -d[:2], np.full(2, self.rcm_var), self.prm.gate_chi2_2, "rcm")
+        H, y = kernels.rcm_jacobian(s.R, s.p, self.rcm)
+        return self._update(s, H, y, self._rcm_r, self.prm.gate_chi2_2, "rcm")
 
     def update_gravity(self, s: State) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and
@@ -309,21 +262,12 @@ class TrackingFilter:
         if not self.tof:
             return False
         c = self.c
-        m = c.tof_plane_normal_base
-        R = s.R
-        Ro = R @ c.tof_origin_tool_m
-        Rb = R @ c.tof_beam_tool
-        den = float(m @ Rb)
+        H, rho, den = kernels.tof_jacobian(
+            s.R, s.p, s.brho, c.tof_plane_normal_base, c.tof_plane_h_m, c.tof_origin_tool_m, c.tof_beam_tool
+        )
         if den < 0.05:
             _bump(s.counts, "rejected:tof:grazing")
             return False
-        num = c.tof_plane_h_m - float(m @ (s.p + Ro))
-        rho = num / den + s.brho
-        mR = m @ R
-        H = np.zeros((1, N))
-        H[0, IP] = -m / den
-        H[0, ITH] = (mR @ skew(c.tof_origin_tool_m)) / den + (num / den**2) * (mR @ skew(c.tof_beam_tool))
-        H[0, IBR] = 1.0
         window = self.prm.tof_offset_window_ms * 1e6
         free = self.vision and (s.t_ns - s.last_tip_ns) <= window
         y = np.array([range_m - rho])

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import bisect
 import heapq
+import math
 from collections import deque
 from typing import Any
 
@@ -150,7 +151,7 @@ class FusionRunner:
         else:
             return None
         vals = payload if not isinstance(payload, dict) else np.concatenate([payload["n_left"], payload["n_right"]])
-        if not np.all(np.isfinite(vals)):
+        if not math.isfinite(float(np.sum(vals))):
             raise ValueError("non-finite value")
         self._seq += 1
         return ((int(t), KIND_ORDER[kind], self._seq), kind, payload)
@@ -243,6 +244,8 @@ class FusionRunner:
         self._prune(t_k - self.history_ns)
 
     def _prune(self, t_min: int) -> None:
+        if self._snap_keys[0][0] >= t_min - self.history_ns // 4:
+            return  # prune in batches: deleting from the list head is O(n)
         k = bisect.bisect_left(self._snap_keys, (t_min,))
         if k > 1:
             k -= 1  # keep one snapshot at or before t_min

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from services.fusion import kernels
 from services.fusion.filter import State
 
 
@@ -53,26 +54,17 @@ def quat_wxyz(R: np.ndarray) -> np.ndarray:
 
 
 def make_sample(s: State, rcm_base_m: np.ndarray, neutral_u: np.ndarray, lock_ns: int) -> StateSample:
-    u = s.R[:, 2].copy()
-    x = s.R[:, 0]
-    # roll: tool x against the horizontal direction normal to the shaft
-    h = np.cross(np.array([0.0, 0.0, 1.0]), u)
-    hn = math.sqrt(float(h @ h))
-    roll = 0.0
-    if hn > 1e-9:
-        h /= hn
-        roll = math.degrees(math.atan2(float(np.cross(h, x) @ u), float(h @ x)))
-    cos_t = float(np.clip(u @ neutral_u, -1.0, 1.0))
+    f = kernels.sample_fields(s.R, s.p, rcm_base_m, neutral_u)
     d = np.diag(s.P)
     return StateSample(
         stamp_ns=int(s.t_ns),
         p_tip_base_m=s.p.copy(),
         v_tip_base_mps=s.v.copy(),
-        q_base_tool=quat_wxyz(s.R),
-        u_base=u,
-        depth_m=float((s.p - rcm_base_m) @ u),
-        tilt_deg=math.degrees(math.acos(cos_t)),
-        roll_deg=roll,
+        q_base_tool=f[0:4],
+        u_base=s.R[:, 2].copy(),
+        depth_m=float(f[4]),
+        tilt_deg=float(f[5]),
+        roll_deg=float(f[6]),
         gyro_bias_radps=s.bg.copy(),
         accel_bias_mps2=s.ba.copy(),
         tof_offset_m=float(s.brho),
