@@ -1,0 +1,120 @@
+"""`tiplog fusion run` and `tiplog evaluate` as a user meets them: bad input gives one line
+and exit 2, never a traceback or an overwritten file; the estimate is identical, bit for bit,
+when the bench's truth is removed from the recording; evaluate's JSON carries the keys other
+tools read and its figures follow the error put in."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.services.fusion.sessions import bench_session, rewrite
+from tiplog.calibration import Calibration
+from tiplog.cli import main as tiplog_main
+from tiplog.mcap_io import McapWriter, read_messages, read_metadata
+
+ESTIMATOR_META = {"calibration_as_calibrated"}
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    return bench_session(tmp_path_factory, "sweeps", seed=12, duration_s=6.0)
+
+
+@pytest.fixture(scope="module")
+def estimate(session, tmp_path_factory):
+    out = tmp_path_factory.mktemp("est") / "est.mcap"
+    assert tiplog_main(["fusion", "run", str(session), "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def _fails(capsys, argv, *needles):
+    code = tiplog_main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    for n in needles:
+        assert n in err[0], err[0]
+
+
+def test_bad_inputs_one_line_exit_2(tmp_path, capsys, session, estimate):
+    out = str(tmp_path / "o.mcap")
+    _fails(capsys, ["fusion", "run", str(tmp_path / "none.mcap"), "--out", out], "no such")
+    txt = tmp_path / "x.mcap"
+    txt.write_text("hello")
+    _fails(capsys, ["fusion", "run", str(txt), "--out", out], "not an MCAP")
+    _fails(capsys, ["fusion", "run", str(session), "--out", str(estimate)], "exists", "--force")
+    _fails(capsys, ["fusion", "run", str(session), "--out", out, "--sensors", "imu,radar"], "radar")
+    bad = tmp_path / "p.yaml"
+    bad.write_text("tof_sigma: 3\n")
+    _fails(capsys, ["fusion", "run", str(session), "--out", out, "--params", str(bad)], "tof_sigma")
+    nocal = tmp_path / "nocal.mcap"
+    rewrite(session, nocal, lambda t: True, lambda n: n == "session")
+    _fails(capsys, ["fusion", "run", str(nocal), "--out", out], "no calibration")
+    noimu = tmp_path / "noimu.mcap"
+    rewrite(session, noimu, lambda t: not t.startswith("device/"), lambda n: True)
+    _fails(capsys, ["fusion", "run", str(noimu), "--out", out], "no IMU")
+    sparse = tmp_path / "sparse.mcap"  # gyro at a fifth of its rate
+    with McapWriter(sparse) as w:
+        for name, rec in read_metadata(session).items():
+            w.add_metadata(name, rec)
+        for r in read_messages(session):
+            if r.topic != "device/gyro" or r.message.header.seq % 5 == 0:
+                w.write(r.topic, r.message, r.log_time_ns)
+    _fails(capsys, ["fusion", "run", str(sparse), "--out", out], "device/gyro", "nominal")
+    _fails(
+        capsys,
+        ["evaluate", str(session), "--estimate", str(session), "--json", str(tmp_path / "r.json")],
+        "no estimate",
+    )
+    assert not (tmp_path / "o.mcap").exists() and not (tmp_path / "r.json").exists()
+
+
+def test_estimate_identical_without_truth(tmp_path, session, estimate):
+    stripped = tmp_path / "stripped.mcap"
+    rewrite(session, stripped, lambda t: not t.startswith("bench/"), lambda n: n in ESTIMATOR_META)
+    assert "calibration_truth" not in read_metadata(stripped)
+    out = tmp_path / "est2.mcap"
+    assert tiplog_main(["fusion", "run", str(stripped), "--out", str(out), "--quiet"]) == 0
+    a = [r.message.SerializeToString() for r in read_messages(estimate, ["fusion/state"])]
+    b = [r.message.SerializeToString() for r in read_messages(out, ["fusion/state"])]
+    assert len(a) > 500 and a == b
+    # a calibration file with the same constants gives the same estimate as the metadata
+    cal = tmp_path / "cal.yaml"
+    Calibration.from_mcap_metadata(read_metadata(session)).save_yaml(cal)
+    out3 = tmp_path / "est3.mcap"
+    assert tiplog_main(["fusion", "run", str(session), "--out", str(out3), "--calibration", str(cal), "--quiet"]) == 0
+    c = [r.message.SerializeToString() for r in read_messages(out3, ["fusion/state"])]
+    assert c == a
+    md = read_metadata(out3)
+    assert json.loads(md["fusion_params"]["json"])["output_delay_ms"] == 30.0
+    assert "rcm_base_m" in json.loads(md["fusion_calibration"]["json"])
+
+
+def test_evaluate_keys_and_figures_follow_the_error(tmp_path, session, estimate):
+    res = tmp_path / "r.json"
+    assert tiplog_main(["evaluate", str(session), "--estimate", str(estimate), "--json", str(res)]) == 0
+    r = json.loads(res.read_text())
+    keys = ("tip_rmse_mm", "tip_median_mm", "tip_p95_mm", "radial_rmse_mm", "tangential_rmse_mm")
+    for k in keys:
+        assert np.isfinite(r["pooled"][k])
+    assert r["blocks"] and all(k in r["blocks"][0] for k in ("name", *keys))
+    assert 0.05 < r["pooled"]["tip_rmse_mm"] < 5.0
+    # the truth itself as the estimate, shifted 3 mm along base x: error exactly 3 mm
+    shifted = tmp_path / "shifted.mcap"
+    from tiplog.v1.fusion_pb2 import FusionState
+
+    with McapWriter(shifted) as w:
+        for rec in read_messages(session, ["bench/robot"]):
+            m = FusionState()
+            m.header.stamp_ns = rec.message.header.stamp_ns
+            m.tip_m.x, m.tip_m.y, m.tip_m.z = rec.message.tip_m.x + 0.003, rec.message.tip_m.y, rec.message.tip_m.z
+            w.write("fusion/state", m, rec.log_time_ns)
+    res2 = tmp_path / "r2.json"
+    assert tiplog_main(["evaluate", str(session), "--estimate", str(shifted), "--json", str(res2)]) == 0
+    p = json.loads(res2.read_text())["pooled"]
+    assert p["tip_rmse_mm"] == pytest.approx(3.0, abs=1e-6)
+    assert p["radial_rmse_mm"] ** 2 + p["tangential_rmse_mm"] ** 2 == pytest.approx(9.0, abs=1e-6)
+    assert 0.5 < p["radial_rmse_mm"] < 2.9  # the shaft is oblique: both parts carry some
