@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -81,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         if n >= a.frames:
             break
     report = {
+        "load_average_1min": os.getloadavg()[0],  # the figures mean little on a busy host: say how busy
+        "cpu_count": os.cpu_count(),
         "device": str(seg.device),
         "torch_threads": torch.get_num_threads(),
         "frames_timed": n,
@@ -90,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(tmp.name) / "obs.mcap"
         s = run_file(rec, out, weights, None, a.device, a.threads, quiet=True)
         report["vision_run"] = {"frames": s["frames"], "seconds": s["seconds"], "fps": s["fps"]}
-    print(f"device {report['device']}, torch threads {report['torch_threads']}, {n} frames")
+    print(f"device {report['device']}, torch threads {report['torch_threads']}, {n} frames; "
+          f"host load {report['load_average_1min']:.1f} on {report['cpu_count']} CPUs")  # fmt: skip
     for k, v in report["per_frame"].items():
         print(f"  {k:12s} p50 {v['p50']:7.1f}  p95 {v['p95']:7.1f}  mean {v['mean']:7.1f}")
     if "vision_run" in report:

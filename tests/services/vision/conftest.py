@@ -65,3 +65,13 @@ def blank_frame(camera, render_params):
     """The phantom alone: the instrument far outside the view."""
     T = pose_matrix((0.3, 0.3, 0.1), (0.0, 0.0, 1.0), 0.0)
     return render_frame(camera, T, render_params, np.random.default_rng(8))
+
+
+@pytest.fixture(scope="session")
+def recording(tmp_path_factory):
+    """A 1 s pixel-tier demo session (15 frames, device streams, calibration metadata)."""
+    from services.bench.session import generate
+
+    path = tmp_path_factory.mktemp("vision") / "pixel.mcap"
+    generate(load_scenario("demo"), path, seed=1001, tier="pixel", duration_s=1.0)
+    return path

@@ -5,17 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.bench.scenario import load_scenario
-from services.bench.session import generate
 from tiplog.cli import main
 from tiplog.mcap_io import read_messages, read_metadata
-
-
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    path = tmp_path_factory.mktemp("vision") / "pixel.mcap"
-    generate(load_scenario("demo"), path, seed=1001, tier="pixel", duration_s=1.0)
-    return path
 
 
 def _obs(path):

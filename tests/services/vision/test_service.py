@@ -124,7 +124,7 @@ def test_frames_in_observations_out(mode, endpoint, rendered, camera):
         r"frames (\d+), processed (\d+), accepted \d+, dropped stale (\d+), bad frames (\d+), undecodable (\d+)", last
     )
     frames_in, processed, dropped, bad, undecodable = map(int, got.groups())
-    assert undecodable == 1
-    assert bad >= 2 and "bad_size" in last and "bad_encoding" in last
+    assert undecodable + bad == 3  # the garbage payload: undecodable, or decoded into a frame rejected as bad
+    assert "bad_size" in last and "bad_encoding" in last
     assert frames_in == processed + dropped + bad
     assert dropped >= len(burst) - len(processed_burst)
