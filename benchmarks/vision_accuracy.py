@@ -85,9 +85,11 @@ def pixel_rows(sim, weights: str, every: int, timings: list) -> list[dict]:
     rcm, rho = _rcm_cam(sim), sim.calib.shaft_radius_m
     rows = []
     for k in range(len(sim.camera_frames.t_true_ns)):
-        img = sim.render_frame(k)  # every frame is rendered: the renderer's generator advances per frame
         if k % every:
             continue
+        # only scored frames are rendered: the renderer's chance events (smoke, occluders, noise)
+        # then come from other draws of its generator than in a full recording, same statistics
+        img = sim.render_frame(k)
         res = pipe.process(img, cam, int(sim.camera_frames.capture_ns[k]), k)
         timings.append(res.timings_ms)
         o = res.obs
