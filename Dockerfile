@@ -1,13 +1,12 @@
-# One image for every service; compose picks the module to run.
+# One image for every service; compose picks the module to run. Only the vision image adds
+# torch: docker build --build-arg EXTRAS=vision (compose does so for the vision service).
 FROM python:3.11-slim
 WORKDIR /app
 ENV PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
-COPY pyproject.toml README.md ./
-COPY tiplog ./tiplog
-COPY services ./services
-COPY proto ./proto
-RUN pip install .
-# The vision image adds the network runtime: docker build --build-arg EXTRAS=vision
+# The repository minus what .dockerignore leaves out (venv, tests, recordings, git).
+COPY . .
 ARG EXTRAS=""
-RUN if [ -n "$EXTRAS" ]; then pip install ".[${EXTRAS}]"; fi
-USER 1000:1000
+RUN pip install ".${EXTRAS:+[$EXTRAS]}"
+# The device and camera nodes are passed through by compose; dialout reads the serial port.
+RUN useradd --uid 1000 --groups dialout,video --no-create-home tiplog
+USER tiplog
