@@ -189,7 +189,7 @@ def _calibration(tmp: Path, seed: int) -> Path:
     session = tmp / "calibration-session.mcap"
     subprocess.run(
         [sys.executable, "-m", "tiplog.cli", "sim", "generate", "--scenario", "demo", "--duration", "1"]
-        + ["--seed", str(seed), "--out", str(session)],
+        + ["--seed", str(seed), "--out", str(session), "--force"],
         cwd=ROOT,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
         check=True,

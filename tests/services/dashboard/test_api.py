@@ -171,3 +171,10 @@ def test_cross_site_posts_are_refused_and_sign_out_clears_the_cookie(served):
         assert same.status_code == 503  # past the check: no recorder on this bus
         out = c.post("/logout")
         assert out.status_code == 303 and 'tiplog_token=""' in out.headers["set-cookie"]
+
+
+def test_pages_referrer_policy_lets_the_browser_send_its_origin(served):
+    # With no-referrer, Chromium sends "Origin: null" on the page's own form posts (sign-in),
+    # which the cross-site check refuses.
+    with served.client(VIEWER) as c:
+        assert c.get("/").headers["referrer-policy"] == "same-origin"
