@@ -84,6 +84,7 @@ class BusFeed:
         self.preview: tuple[int, str, bytes] | None = None  # (seq, format, data)
         self._preview_seq = 0
         self._preview_cv = threading.Condition()
+        self._latest_cv = threading.Condition()
         self._subs: list[Any] = []
         # (state total, newest state as sent to pages), shared by the websocket senders.
         self.current_cache: tuple[int, dict[str, Any]] | None = None
@@ -97,6 +98,7 @@ class BusFeed:
             sub("vision/preview", self._on_preview),
             sub("recorder/status", self._keep),
             sub("device/status", self._keep),
+            sub("system/supervisor", self._keep),  # `tiplog up`: run state and restarts
         ]
         # Counting every topic needs only the attachment: no payload copy (camera frames).
         self._count_sub = bus.session.declare_subscriber(bus.key("**"), self._count)
@@ -126,8 +128,15 @@ class BusFeed:
         self.streams.on_sample(self.bus.topic_of(str(sample.key_expr)), seq, pid, now_ns())
 
     def _keep(self, msg: Any, info: SampleInfo) -> None:
-        self.latest[info.topic] = msg
-        self.latest_receive_ns[info.topic] = info.receive_ns
+        with self._latest_cv:
+            self.latest[info.topic] = msg
+            self.latest_receive_ns[info.topic] = info.receive_ns
+            self._latest_cv.notify_all()
+
+    def wait_latest(self, topic: str, timeout_s: float) -> bool:
+        """Block until a message of `topic` has been kept (for tests and tools)."""
+        with self._latest_cv:
+            return self._latest_cv.wait_for(lambda: topic in self.latest, timeout_s)
 
     def _on_state(self, msg: fusion_pb2.FusionState, info: SampleInfo) -> None:
         self._keep(msg, info)

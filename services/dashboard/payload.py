@@ -16,6 +16,7 @@ from google.protobuf.message import Message
 from services.dashboard.feed import REF_COLUMNS, STATE_COLUMNS, VISION_COLUMNS, BusFeed
 from services.dashboard.ring import Slice
 from tiplog.clock import now_ns
+from tiplog.v1 import system_pb2
 
 
 def message_dict(msg: Message | None) -> dict[str, Any] | None:
@@ -76,9 +77,17 @@ def status(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
     t = now_ns()
     latest = feed.latest
     accepted = latest.get("vision/accepted")
+    health = feed.health.snapshot()
+    sup = latest.get("system/supervisor")
+    if sup is not None:  # `tiplog up` runs the system: its view of each process joins the tokens'
+        for run in sup.services:
+            entry = health.setdefault(run.service, {"state": "down", "token": False})
+            entry["run_state"] = system_pb2.ServiceRunState.Name(run.state).removeprefix("SERVICE_RUN_STATE_").lower()
+            entry["restarts"] = run.restarts
     return {
         "t_ms": round((t - t0_ns) / 1e6, 3),
-        "health": feed.health.snapshot(),
+        "health": health,
+        "supervisor_event": sup.event if sup is not None else None,
         "streams": feed.streams.snapshot(),
         "recorder": message_dict(latest.get("recorder/status")),
         "recorder_age_s": _age_s(feed, "recorder/status", t),

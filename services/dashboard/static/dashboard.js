@@ -112,7 +112,9 @@
   function updateStatus(st) {
     const h = st.health || {};
     fillTable($("health").tBodies[0], Object.entries(h).map(([name, v]) =>
-      [[name, v.state, v.last_data_age_s === null ? "\u2013" : fmt(v.last_data_age_s, 2)], `state-${v.state}`]));
+      [[name, v.state, v.last_data_age_s === null || v.last_data_age_s === undefined ? "\u2013" : fmt(v.last_data_age_s, 2),
+        v.run_state || "\u2013", v.restarts === undefined ? "\u2013" : String(v.restarts)], `state-${v.state}`]));
+    text("supervisor-event", st.supervisor_event ? `tiplog up: ${st.supervisor_event}` : "");
     const streams = st.streams || {};
     fillTable($("streams").tBodies[0], Object.entries(streams).map(([topic, v]) =>
       [[topic, fmt(v.rate_hz, 1), String(v.dropped), String(v.count)]]));

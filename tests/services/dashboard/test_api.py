@@ -178,3 +178,19 @@ def test_pages_referrer_policy_lets_the_browser_send_its_origin(served):
     # which the cross-site check refuses.
     with served.client(VIEWER) as c:
         assert c.get("/").headers["referrer-policy"] == "same-origin"
+
+
+def test_supervisor_run_state_and_restarts_join_health(served):
+    from tiplog.v1 import system_pb2
+
+    R = system_pb2.ServiceRunState
+    sup = system_pb2.SupervisorStatus(event="fusion exited with -9; restarting in 1.0 s")
+    sup.services.add(service="fusion", state=R.SERVICE_RUN_STATE_RESTARTING, restarts=2)
+    sup.services.add(service="recorder", state=R.SERVICE_RUN_STATE_RUNNING, restarts=0)
+    served.pub_bus.publisher("system/supervisor").put(sup)
+    assert served.running.feed.wait_latest("system/supervisor", 10)
+    with served.client(VIEWER) as c:
+        body = c.get("/api/status").json()
+    assert body["supervisor_event"] == "fusion exited with -9; restarting in 1.0 s"
+    assert body["health"]["fusion"]["run_state"] == "restarting" and body["health"]["fusion"]["restarts"] == 2
+    assert body["health"]["recorder"]["run_state"] == "running"
