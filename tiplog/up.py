@@ -144,8 +144,8 @@ def run(args: argparse.Namespace) -> int:
         status_pub = bus.publisher("system/supervisor")
         children = [Child(n, functools.partial(_spawn, n, args.listen, args.config, sets[n])) for n in names]
         for c in children:
-            # Fusion needs the calibration at start: with the bench's file it waits for the bench.
-            if c.name == "fusion" and calibration is not None:
+            # The services that read the calibration at start wait for the bench to write it.
+            if c.name in CALIBRATION_READERS and calibration is not None:
                 c.ready = calibration.exists
         sup = Supervisor(children, publish=status_pub.put, router_endpoint=args.listen)
         if calibration is not None:
