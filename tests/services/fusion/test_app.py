@@ -84,6 +84,7 @@ def _strip(m):
     return m.SerializeToString()
 
 
+@pytest.mark.slow
 def test_live_equals_offline_on_the_inputs_it_consumed(session, bus_pair_configs, tmp_path):
     path, calib_file = session
     calib = Calibration.load_yaml(calib_file)
@@ -133,6 +134,7 @@ def test_live_equals_offline_on_the_inputs_it_consumed(session, bus_pair_configs
     )
 
 
+@pytest.mark.slow
 def test_malformed_input_is_counted_and_the_service_stays_up(session, bus_pair_configs):
     path, calib_file = session
     svc = _Service(bus_pair_configs[0], f"calibration_file={calib_file}")
