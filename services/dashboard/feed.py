@@ -77,8 +77,6 @@ class BusFeed:
         self._listeners: list[Listener] = []
         self._lock = threading.Lock()
         self._robot_recent: deque[tuple[int, np.ndarray]] = deque(maxlen=400)  # (stamp, [tip, u])
-        self._err_sq = np.zeros(3)  # running sums of err^2, radial^2, tangential^2
-        self._err_n = 0
         self.latest: dict[str, Any] = {}  # topic -> newest message
         self.latest_receive_ns: dict[str, int] = {}
         self.preview: tuple[int, str, bytes] | None = None  # (seq, format, data)
@@ -213,22 +211,32 @@ class BusFeed:
         u = ref[3:] / np.linalg.norm(ref[3:])
         radial = float(e @ u)
         tangential = float(np.linalg.norm(e - radial * u))
-        out = [float(np.linalg.norm(e)), radial, tangential]
-        with self._lock:
-            self._err_sq += np.square(out)
-            self._err_n += 1
-        return out
+        return [float(np.linalg.norm(e)), radial, tangential]
 
-    def error_rms_mm(self) -> dict[str, float | int | None]:
-        """RMS of the error against the reference since start (3-D, radial, tangential)."""
-        with self._lock:
-            n = self._err_n
-            rms = np.sqrt(self._err_sq / n) if n else [None] * 3
+    def error_rms_mm(self, window_s: float = 30.0) -> dict[str, float | int | None]:
+        """RMS of the error against the reference (3-D, radial, tangential) over the states of
+        the last `window_s` seconds that had a reference: a filter's start-up transient leaves
+        the figure once it is older than the window."""
+        newest = self.state.last()
+        if newest is None:
+            return {
+                "samples": 0,
+                "window_s": window_s,
+                "rms_mm": None,
+                "radial_rms_mm": None,
+                "tangential_rms_mm": None,
+            }
+        n_rows = min(len(self.state), int(window_s * 1000) + 1)  # at most 1 kHz of states
+        s = self.state.read(self.state.total - n_rows, n_rows)
+        keep = s.stamps_ns >= newest[0] - int(window_s * 1e9)
+        cols = [STATE_COLUMNS.index(c) for c in ("err_mm", "err_radial_mm", "err_tangential_mm")]
+        err = s.rows[keep][:, cols]
+        err = err[np.isfinite(err).all(axis=1)]
+        rms = np.sqrt(np.mean(np.square(err), axis=0)) if len(err) else [None] * 3
         keys = ("rms_mm", "radial_rms_mm", "tangential_rms_mm")
-        return {
-            "samples": n,
-            **{k: (round(float(v), 3) if v is not None else None) for k, v in zip(keys, rms, strict=True)},
-        }
+        out: dict[str, float | int | None] = {"samples": len(err), "window_s": window_s}
+        out.update({k: (round(float(v), 3) if v is not None else None) for k, v in zip(keys, rms, strict=True)})
+        return out
 
     def _vision_tip_base_mm(self, msg: vision_pb2.VisionObservation) -> np.ndarray | None:
         """Tip from an accepted observation (junction on the axis + the junction-to-tip length),

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import httpx
 import pytest
@@ -62,6 +64,27 @@ def make_robot(stamp_ns: int, tip_m, rcm_m, depth_mm: float = 140.0):
     r.tip_m.x, r.tip_m.y, r.tip_m.z = tip_m
     r.rcm_m.x, r.rcm_m.y, r.rcm_m.z = rcm_m
     return r
+
+
+CHROMIUM = "/usr/bin/chromium"
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not Path(CHROMIUM).exists():
+        pytest.skip(f"{CHROMIUM} missing (make browser installs Debian's chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def artifacts(tmp_path_factory) -> Path:
+    out = Path(os.environ.get("TIPLOG_TEST_ARTIFACTS", tmp_path_factory.mktemp("artifacts")))
+    out.mkdir(parents=True, exist_ok=True)
+    return out
 
 
 @pytest.fixture

@@ -136,7 +136,9 @@ def start_system(tmp: Path, *, real_fusion: bool = False, duration_s: float = 20
         "recorder": {"out_dir": str(tmp / "rec"), "autostart": "never", "min_free_bytes": 0, "status_period_s": 0.5},
         "dashboard": {"port": port},
     }
-    config["dashboard"]["calibration_file"] = str(_calibration(tmp, seed))
+    calibration = str(_calibration(tmp, seed))
+    config["dashboard"]["calibration_file"] = calibration
+    config["fusion"] = {"calibration_file": calibration}
     cfg_path = tmp / "system.yaml"
     cfg_path.write_text(yaml.safe_dump(config))
     router = Bus(BusConfig(mode="router", listen=[endpoint], connect=[], prefix=prefix), service="up")
@@ -220,3 +222,19 @@ def _wait_ready(system: LiveSystem, timeout_s: float = 120.0) -> None:
                 last = repr(e)
             time.sleep(0.25)  # polling a starting system; nothing to wait on but its answers
     raise TimeoutError(f"system not ready in {timeout_s} s ({last})")
+
+
+def signed_in(browser, system: LiveSystem, token: str, viewport=(1440, 1000)):
+    """A page signed in through the login form with `token`, its trail flowing."""
+    # bypass_csp: Playwright's own waits evaluate strings, which the page's policy forbids.
+    ctx = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}, bypass_csp=True)
+    page = ctx.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    resp = page.goto(system.url)
+    assert resp.status == 401  # the login form, nothing else
+    page.fill("#token", token)
+    page.click("#sign-in")
+    page.wait_for_function("window.tiplog && window.tiplog.est && window.tiplog.est.n > 100", timeout=30_000)
+    page.errors = errors
+    return ctx, page

@@ -69,6 +69,11 @@ def test_state_and_error_split_against_the_reference(served):
     assert d["err_radial_mm"] == pytest.approx(2.0, abs=1e-3)
     assert d["err_tangential_mm"] == pytest.approx(1.0, abs=1e-3)
     assert d["err_mm"] == pytest.approx(np.sqrt(5.0), abs=1e-3)
+    with served.client(VIEWER) as c:
+        rms = c.get("/api/status").json()["error"]
+    # The probe states (stamped near 0) are far outside the 30 s window and had no reference.
+    assert rms["samples"] == 1 and rms["rms_mm"] == pytest.approx(np.sqrt(5.0), abs=1e-3)
+    assert rms["radial_rms_mm"] == pytest.approx(2.0, abs=1e-3)
 
 
 def test_health_counts_streams_and_gaps(served):

@@ -8,17 +8,15 @@ import os
 import subprocess
 import sys
 import threading
-from pathlib import Path
 
 import pytest
 
 from tests.conftest import ROOT
-from tests.services.dashboard.live_system import OPERATOR_TOKEN, VIEWER_TOKEN, LiveSystem, start_system
+from tests.services.dashboard.live_system import OPERATOR_TOKEN, VIEWER_TOKEN, LiveSystem, signed_in, start_system
 from tiplog.mcap_io import read_metadata
 from tiplog.v1 import recorder_pb2
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-CHROMIUM = "/usr/bin/chromium"
 
 
 @pytest.fixture(scope="module")
@@ -26,40 +24,6 @@ def system(tmp_path_factory) -> LiveSystem:
     s = start_system(tmp_path_factory.mktemp("system"))
     yield s
     s.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if not Path(CHROMIUM).exists():
-        pytest.skip(f"{CHROMIUM} missing (make browser installs Debian's chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        yield b
-        b.close()
-
-
-@pytest.fixture(scope="module")
-def artifacts(tmp_path_factory) -> Path:
-    out = Path(os.environ.get("TIPLOG_TEST_ARTIFACTS", tmp_path_factory.mktemp("artifacts")))
-    out.mkdir(parents=True, exist_ok=True)
-    return out
-
-
-def signed_in(browser, system: LiveSystem, token: str, viewport=(1440, 1000)):
-    """A page signed in through the login form with `token`, its trail flowing."""
-    # bypass_csp: Playwright's own waits evaluate strings, which the page's policy forbids.
-    ctx = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}, bypass_csp=True)
-    page = ctx.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    resp = page.goto(system.url)
-    assert resp.status == 401  # the login form, nothing else
-    page.fill("#token", token)
-    page.click("#sign-in")
-    page.wait_for_function("window.tiplog && window.tiplog.est && window.tiplog.est.n > 100", timeout=30_000)
-    page.errors = errors
-    return ctx, page
 
 
 def test_numbers_match_the_published_state_and_screenshot(browser, system, artifacts):

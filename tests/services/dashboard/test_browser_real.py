@@ -1,0 +1,77 @@
+"""The dashboard in headless Chromium against the whole system on the simulated bench with the
+live fusion service (bench, gateway, fusion, recorder, dashboard as processes): the numbers
+shown are those of a state fusion published, the trail grows, the error against the robot is
+shown, and a screenshot is saved."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from tests.services.dashboard.live_system import OPERATOR_TOKEN, LiveSystem, signed_in, start_system
+from tiplog.bus import SampleInfo
+from tiplog.v1 import fusion_pb2
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+
+class Published:
+    """Every fusion/state seen on the bus, by stamp."""
+
+    def __init__(self) -> None:
+        self.by_stamp: dict[int, fusion_pb2.FusionState] = {}
+        self.lock = threading.Lock()
+
+    def __call__(self, msg: fusion_pb2.FusionState, _info: SampleInfo) -> None:
+        with self.lock:
+            self.by_stamp[msg.header.stamp_ns] = msg
+
+
+@pytest.fixture(scope="module")
+def real_system(tmp_path_factory) -> LiveSystem:
+    s = start_system(tmp_path_factory.mktemp("real"), real_fusion=True)
+    s.published = Published()
+    s.bus.subscribe("fusion/state", s.published)
+    yield s
+    s.stop()
+
+
+def test_numbers_are_a_published_state_of_live_fusion(browser, real_system, artifacts):
+    ctx, page = signed_in(browser, real_system, OPERATOR_TOKEN)
+    try:
+        # A frame where the numbers on screen belong to the state the page holds as newest.
+        shown = page.wait_for_function(
+            """() => {
+                const s = window.tiplog.current && window.tiplog.current.state;
+                const t = (id) => document.getElementById(id).textContent;
+                if (!s || t('v-depth') !== s.depth_mm.toFixed(2) || t('v-tilt') !== s.tilt_deg.toFixed(2)) return null;
+                return [s.header.stamp_ns, t('v-depth'), t('v-tilt'), t('v-roll'), t('v-tof-offset'), t('v-tip'),
+                        t('v-fusion-lag'), t('lock')];
+            }""",
+            timeout=30_000,
+        ).json_value()
+        stamp, depth, tilt, roll, tof, tip, lag, lock = shown
+        with real_system.published.lock:
+            st = real_system.published.by_stamp.get(stamp)
+        assert st is not None, "the page shows a state fusion never published"
+        tip_mm = [st.tip_m.x * 1e3, st.tip_m.y * 1e3, st.tip_m.z * 1e3]
+        assert [depth, tilt, roll, tof, lag] == [
+            f"{st.depth_mm:.2f}",
+            f"{st.tilt_deg:.2f}",
+            f"{st.roll_deg:.2f}",
+            f"{st.tof_offset_mm:.2f}",
+            f"{st.lag_ms:.1f}",
+        ]
+        assert tip == " / ".join(f"{v:.2f}" for v in tip_mm)
+        assert lock == ("vision: locked" if st.vision_locked else "vision: no lock")
+        n0 = page.evaluate("window.tiplog.est.n")
+        page.wait_for_function("n => window.tiplog.est.n >= n + 400", arg=n0, timeout=20_000)
+        page.wait_for_function("document.getElementById('e-count').textContent !== '0'", timeout=10_000)
+        assert float(page.text_content("#e-rms")) >= 0.0  # shown as a number against the robot
+        page.wait_for_function("() => document.querySelector('#diagnostics tbody td') !== null", timeout=10_000)
+        assert page.text_content("#diagnostics tbody tr:first-child td:nth-child(2)") == "full"
+        page.screenshot(path=str(artifacts / "dashboard-live-fusion.png"), full_page=True)
+        assert page.errors == []
+    finally:
+        ctx.close()
