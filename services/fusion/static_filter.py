@@ -20,13 +20,28 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tiplog.calibration import Calibration
-from tiplog.geometry import rot_between, skew, so3_exp
+from tiplog.geometry import rot_between
 from tiplog.vision_geometry import closest_axis_point, p0_from_normals, ray_axis_intersection, trocar_gate
 
 E_S = np.array([0.0, 0.0, 1.0])  # shaft axis in tool coordinates (distal)
 G_MPS2 = 9.81
 _DEG = math.pi / 180.0
 _CHI2 = {1: 10.83, 2: 13.82, 3: 16.27}  # 99.9 %
+_I3 = np.eye(3)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(3,) -> (3, 3) cross-product matrix (scalar path: the filter's hot loop)."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def so3_exp(phi: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues, scalar path)."""
+    th = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+    K = skew(phi)
+    if th < 1e-8:
+        return _I3 + K
+    return _I3 + (math.sin(th) / th) * K + ((1.0 - math.cos(th)) / (th * th)) * (K @ K)
 
 
 @dataclass(frozen=True)
@@ -47,7 +62,8 @@ class StaticParams:
     accel_max_rate_dps: float = 2.0
     plane_sigma_deg: float = 0.45  # 0.113 deg held out x sqrt(15)
     vision_depth_sigma_mm: float = 1.8  # 0.47 mm x sqrt(15)
-    tof_sigma_mm: float = 6.5  # sqrt(3.2^2 + 0.6^2 x 100)
+    p0_sigma_mm: float = 0.0  # closest axis point off the line through the RCM; 0: off (no gain on seed 1000)
+    tof_sigma_mm: float = 30.0  # 3.04 mm pose-locked across poses x sqrt(100 samples per pose)
     junction_min_sin2: float = 0.45
     trocar_gate_mm: float = 0.0  # 0: off (the n_L x n_R line is ill-conditioned; the planes are gated on innovation)
 
@@ -159,6 +175,16 @@ class StaticFilter:
         H[:, 0:3] = -(N @ AR) @ skew(E_S)
         y = -(N @ AR @ E_S)
         self._update(s, y, H, np.eye(2) * (self.p.plane_sigma_deg * _DEG) ** 2, "vision_planes")
+        if self.p.p0_sigma_mm > 0:
+            # the closest axis point P0 (well conditioned) lies on the line through the RCM:
+            # its offset normal to u observes u's component within the viewing plane too
+            d = c.R_base_camera @ p0_from_normals(n_left, n_right, c.shaft_radius_m) + self.cam_base - c.rcm_base_m
+            u = s.R @ E_S
+            du = -s.R @ skew(E_S)  # d u / d dtheta
+            H = np.zeros((3, 7))
+            H[:, 0:3] = -(u @ d) * du - np.outer(u, d @ du)
+            y = -(d - u * (u @ d))
+            self._update(s, y, H, np.eye(3) * (self.p.p0_sigma_mm * 1e-3) ** 2, "vision_p0")
         if ray is None:
             return
         u_cam = self.A @ s.R @ E_S
