@@ -91,15 +91,15 @@ def stats(err: np.ndarray) -> dict[str, float]:
     }
 
 
-def run_vqf(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
+def run_vqf(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, tau_acc_s: float = 3.0) -> np.ndarray:
     from vqf import VQF  # benchmark-only reference
 
     dt = float(np.median(np.diff(t_s)))
-    out = VQF(dt).updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
+    out = VQF(dt, tauAcc=tau_acc_s).updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
     return out["quat6D"]
 
 
-def one(scenario: str, seed: int, duration: float | None, settle_s: float, work: Path) -> dict:
+def one(scenario: str, seed: int, duration: float | None, settle_s: float, work: Path, tau_acc_s: float) -> dict:
     from services.fusion.attitude_cli import read_csv
     from tiplog.cli import main as tiplog_main
 
@@ -113,19 +113,20 @@ def one(scenario: str, seed: int, duration: float | None, settle_s: float, work:
     in_csv, out_csv = work / f"{scenario}_{seed}.csv", work / f"{scenario}_{seed}_att.csv"
     n = export_csv(session, in_csv)
     t0 = time.perf_counter()
-    if tiplog_main(["fusion", "attitude", str(in_csv), str(out_csv), "--force"]) != 0:
+    if tiplog_main(["fusion", "attitude", str(in_csv), str(out_csv), "--force", "--tau-acc", str(tau_acc_s)]) != 0:
         raise RuntimeError("tiplog fusion attitude failed")
     ours_s = time.perf_counter() - t0
     t_s, gyr, acc = read_csv(in_csv)
     ours = np.loadtxt(out_csv, delimiter=",", skiprows=1)[:, 1:]
     t0 = time.perf_counter()
-    ref = run_vqf(t_s, gyr, acc)
+    ref = run_vqf(t_s, gyr, acc, tau_acc_s)
     vqf_s = time.perf_counter() - t0
     up = truth_up_imu(session, t_s)
     keep = t_s >= t_s[0] + settle_s
     return {
         "scenario": scenario,
         "seed": seed,
+        "tau_acc_s": tau_acc_s,
         "rows": n,
         "seconds": float(t_s[-1] - t_s[0]),
         "ours": stats(inclination_error_deg(ours, up)[keep]) | {"wall_s": ours_s},
@@ -138,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenarios", nargs="+", default=["sweeps", "teleop"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
     ap.add_argument("--duration", type=float, help="cut each session to this many seconds")
+    ap.add_argument("--tau-acc", type=float, default=3.0, help="accelerometer time constant of both filters [s]")
     ap.add_argument("--settle", type=float, default=5.0, help="seconds left out at the start")
     ap.add_argument("--work", help="folder for sessions and CSVs (default: a temporary one)")
     ap.add_argument("--json", help="also write the results here")
@@ -145,7 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.work or tmp)
         work.mkdir(parents=True, exist_ok=True)
-        rows = [one(s, seed, args.duration, args.settle, work) for s in args.scenarios for seed in args.seeds]
+        rows = [
+            one(s, seed, args.duration, args.settle, work, args.tau_acc) for s in args.scenarios for seed in args.seeds
+        ]
     print(f"{'scenario':8} {'seed':>4} {'s':>6} | {'ours rms/med/p95 deg':>22} | {'vqf rms/med/p95 deg':>22}")
     for r in rows:
         o, v = r["ours"], r["vqf"]
