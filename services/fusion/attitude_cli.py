@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +107,16 @@ def run(args: argparse.Namespace) -> int:
         params = Params(estimate_bias=not args.no_bias, **kw)
     except ValueError as e:
         raise UserError(str(e)) from None
+    norm = np.linalg.norm(acc, axis=1)
+    g_med = float(np.nanmedian(norm[norm > 0])) if np.any(norm > 0) else 0.0
+    if g_med > 0 and not 5.0 <= g_med <= 15.0:
+        # only the direction matters to the filter, but its rest threshold is in m/s^2
+        print(
+            f"tiplog fusion attitude: note: median |acc| is {g_med:.3g}, not near 9.81 m/s^2; "
+            "scaling the accelerometer to 9.81 (units in g?)",
+            file=sys.stderr,
+        )
+        acc = acc * (9.81 / g_med)
     q = estimate(t_s, gyr, acc, params)
     with atomic_output(args.output, args.force) as tmp:
         write_csv(tmp, t_s, q)

@@ -91,3 +91,20 @@ def test_bad_parameter_exit_2(tmp_path: Path, capsys):
     src.write_text(HEADER + "".join(_rows(50)))
     rc, err = _run([src, tmp_path / "out.csv", "--tau-acc", "0"], capsys)
     assert rc == 2 and "tau_acc_s" in err
+
+
+def test_accelerometer_in_g_is_scaled_with_a_note(tmp_path: Path, capsys):
+    src, dst, ref = tmp_path / "in.csv", tmp_path / "out.csv", tmp_path / "ref.csv"
+    rows = _rows()
+    src.write_text(HEADER + "".join(rows))
+    assert _run([src, ref], capsys) == (0, "")
+    g_rows = []
+    for r in rows:
+        v = [float(x) for x in r.split(",")]
+        g_rows.append(",".join(f"{x:.9f}" for x in [*v[:4], *(np.array(v[4:]) / 9.81)]) + "\n")
+    src.write_text(HEADER + "".join(g_rows))
+    rc, err = _run([src, dst], capsys)
+    assert rc == 0 and "not near 9.81" in err
+    np.testing.assert_allclose(
+        np.loadtxt(dst, delimiter=",", skiprows=1), np.loadtxt(ref, delimiter=",", skiprows=1), atol=1e-5
+    )
