@@ -255,7 +255,7 @@ def load_scenario(name_or_path: str | Path, overrides: list[str] | dict[str, Any
         data: dict[str, Any] = _merge({"name": key, "motion": dict(MOTION_DEFAULTS)}, BUILTIN[key])
     else:
         p = Path(key)
-        if not p.exists() and p.suffix not in (".yaml", ".yml") and "/" not in key:
+        if not p.exists():
             raise ConfigError(f"scenario error: {key!r} is neither a built-in ({', '.join(BUILTIN)}) nor a file")
         doc = read_yaml_file(p, "scenario")
         if not isinstance(doc, dict):
