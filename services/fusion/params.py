@@ -49,16 +49,16 @@ class Params:
     # --- measurements -------------------------------------------------------------------
     rcm_sigma_mm: float = 0.3
     rcm_every: int = 1  # RCM pseudo-measurement every n-th gyro sample
-    gravity_sigma_deg: float = 0.6
+    gravity_sigma_deg: float = 1.0
     gravity_sigma_per_excess: float = 20.0  # sigma grows by this many deg per unit | |a|/g - 1 |
     gravity_rate_hz: float = 20.0
-    tof_sigma_mm: float = 6.0
+    tof_sigma_mm: float = 20.0  # 3.2 mm white + 3 mm pose-locked, 100 Hz: inflated for correlation
     tof_min_mm: float = 20.0
     tof_max_mm: float = 400.0
     tof_offset_window_ms: float = 2000.0  # b_rho estimated only within this of an independent vision tip
-    vision_plane_sigma_deg: float = 0.25
-    vision_offset_sigma_mm: float = 0.4
-    vision_ray_sigma_mm: float = 0.6
+    vision_plane_sigma_deg: float = 0.4
+    vision_offset_sigma_mm: float = 0.25
+    vision_ray_sigma_mm: float = 1.0
     trocar_gate_mm: float = 3.5
     gated_out_tip: bool = True  # use the tip (not the axis) of frames that fail the trocar gate
     junction_min_sin2: float = 0.45
