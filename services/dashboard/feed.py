@@ -97,6 +97,7 @@ class BusFeed:
             sub("recorder/status", self._keep),
             sub("device/status", self._keep),
             sub("system/supervisor", self._keep),  # `tiplog up`: run state and restarts
+            sub("fusion/predicted", self._keep),  # the newest state carried to the present
         ]
         # Counting every topic needs only the attachment: no payload copy (camera frames).
         self._count_sub = bus.session.declare_subscriber(bus.key("**"), self._count)

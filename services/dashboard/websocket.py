@@ -69,6 +69,15 @@ def _current(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
     return hit[1]
 
 
+def _predicted(feed: BusFeed) -> list[float] | None:
+    """Tip of fusion/predicted (the state carried forward to the present), base frame, mm."""
+    p = feed.latest.get("fusion/predicted")
+    if p is None:
+        return None
+    tip = [round(v * 1e3, 4) for v in (p.tip_m.x, p.tip_m.y, p.tip_m.z)]
+    return tip if all(v == v and abs(v) < 1e9 for v in tip) else None
+
+
 def _dumps(msg: dict[str, Any]) -> str:
     return json.dumps(msg, separators=(",", ":"), allow_nan=False)
 
@@ -115,6 +124,7 @@ async def _send_loop(websocket: WebSocket, feed: BusFeed, wake: Wake, config: Da
     rings = {"state": feed.state, "reference": feed.reference, "vision": feed.vision}
     period_ns = int(config.push_status_period_s * 1e9)
     next_status = 0
+    predicted_sent_ns = 0
     while True:
         event = wake.event  # taken before looking, so a row arriving now still wakes us
         behind = any(cursors[k] < r.total for k, r in rings.items())
@@ -136,6 +146,10 @@ async def _send_loop(websocket: WebSocket, feed: BusFeed, wake: Wake, config: Da
             continue
         if new_state:
             msg["current"] = _current(feed, t0_ns)
+            predicted_ns = feed.latest_receive_ns.get("fusion/predicted", 0)
+            if predicted_ns != predicted_sent_ns:
+                predicted_sent_ns = predicted_ns
+                msg["predicted"] = _predicted(feed)
         if status_due:
             msg["status"] = payload.status(feed, t0_ns)
             next_status = now_ns() + period_ns

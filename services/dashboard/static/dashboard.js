@@ -66,6 +66,7 @@
     view.skipped += msg.skipped;
     view.lastSent = msg.sent_ns;
     if (msg.current) view.current = msg.current;
+    if (msg.predicted !== undefined) view.predicted = msg.predicted;
     if (msg.status) { view.status = msg.status; updateStatus(msg.status); }
     view.dirty = true;
   }
@@ -136,7 +137,10 @@
     text("v-vision-latency", fmt(vlat, 1));
     const drows = [];
     if (diag) {
-      drows.push([["mode", diag.mode || "\u2013"]], [["rewinds", String(diag.rewinds)]], [["max rewind (ms)", fmt(diag.max_rewind_ms, 1)]]);
+      drows.push([["mode", diag.mode || "\u2013"]], [["initialised", diag.initialised ? "yes" : "no"]],
+        [["resets", String(diag.resets || 0)]], [["inputs dropped (filter behind)", String(diag.queue_drops || 0)]],
+        [["rewinds", String(diag.rewinds)]], [["max rewind (ms)", fmt(diag.max_rewind_ms, 1)]]);
+      for (const [k, v] of Object.entries(diag.reset_reasons || {})) drows.push([[`resets: ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.updates || {})) drows.push([[`updates ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.rejected || {})) drows.push([[`rejected ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.innovation_nis || {})) drows.push([[`NIS ${k}`, fmt(v, 2)]]);
@@ -169,6 +173,7 @@
     return {
       est: view.est, ref: view.ref, vis: view.vis, axes: view.axes,
       tip: s ? v3(s.tip_m, 1000) : null, u: s ? v3(s.shaft_direction, 1) : null, depth: s ? s.depth_mm : 0,
+      predicted: view.predicted || null,
       refTip: robot ? v3(robot.tip_m, 1000) : null, refU, refDepth: robot ? robot.depth_mm : 0,
     };
   }

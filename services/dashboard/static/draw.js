@@ -95,6 +95,13 @@
     ctx.fillStyle = color; ctx.beginPath(); ctx.arc(m.X(tip[axes[0]]), m.Y(tip[axes[1]]), 4 * (window.devicePixelRatio || 1), 0, 2 * Math.PI); ctx.fill();
   }
 
+  // The present (fusion/predicted): a hollow ring, so the held-back estimate stays visible.
+  function ring(ctx, p, axes, m, color, dpr) {
+    if (!p) return;
+    ctx.strokeStyle = color; ctx.lineWidth = 2 * dpr; ctx.beginPath();
+    ctx.arc(m.X(p[axes[0]]), m.Y(p[axes[1]]), 7 * dpr, 0, 2 * Math.PI); ctx.stroke();
+  }
+
   function scaleBar(ctx, m, w, h, dpr) {
     const steps = [1, 2, 5, 10, 20, 50, 100, 200];
     const target = w / 5 / m.s;
@@ -125,6 +132,7 @@
     dots(ctx, scene.vis, 1, scene.axes, m, COLORS.vis, 2 * dpr);
     shaft(ctx, scene.refTip, scene.refU, scene.refDepth, scene.axes, m, COLORS.ref, 3 * dpr);
     shaft(ctx, scene.tip, scene.u, scene.depth, scene.axes, m, COLORS.est, 3 * dpr);
+    ring(ctx, scene.predicted, scene.axes, m, COLORS.est, dpr);
     scaleBar(ctx, m, w, h, dpr);
   }
 
@@ -149,6 +157,7 @@
       ctx.arc(m.X(scene.refTip[a[0]]), m.Y(scene.refTip[a[1]]), 4 * dpr, 0, 2 * Math.PI); ctx.fill();
     }
     ctx.fillStyle = COLORS.est; ctx.beginPath(); ctx.arc(w / 2, h / 2, 4 * dpr, 0, 2 * Math.PI); ctx.fill();
+    ring(ctx, scene.predicted, a, m, COLORS.est, dpr);
     ctx.fillStyle = COLORS.text; ctx.font = `${11 * dpr}px sans-serif`;
     ctx.fillText(`${sizeMm} mm \u00d7 ${sizeMm} mm, grid 5 mm`, 6 * dpr, h - 6 * dpr);
   }

@@ -71,6 +71,9 @@ def test_numbers_are_a_published_state_of_live_fusion(browser, real_system, arti
         assert float(page.text_content("#e-rms")) >= 0.0  # shown as a number against the robot
         page.wait_for_function("() => document.querySelector('#diagnostics tbody td') !== null", timeout=10_000)
         assert page.text_content("#diagnostics tbody tr:first-child td:nth-child(2)") == "full"
+        # The present, from fusion/predicted, drawn as a ring beside the held-back estimate.
+        page.wait_for_function("Array.isArray(window.tiplog.predicted)", timeout=10_000)
+        assert len(page.evaluate("window.tiplog.predicted")) == 3
         page.screenshot(path=str(artifacts / "dashboard-live-fusion.png"), full_page=True)
         assert page.errors == []
     finally:

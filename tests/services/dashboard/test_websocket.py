@@ -49,6 +49,8 @@ class _FakeFeed:
         self.reference = Ring(capacity, 4)
         self.vision = Ring(capacity, 5)
         self.current_cache = None
+        self.latest: dict = {}
+        self.latest_receive_ns: dict = {}
 
 
 class _SlowSocket:
