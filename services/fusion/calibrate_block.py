@@ -153,16 +153,7 @@ def calibrate_block(
                 v["capture_ns"][idx] - int(lat * 1e6), data.robot_t_ns, data.R_base_tool, data.p_tip_base_m
             )
             per_pose.append(
-                junction_offsets_m(
-                    v["n_left"][idx],
-                    v["n_right"][idx],
-                    v["junction_ray"][idx],
-                    R,
-                    p,
-                    prior.T_base_camera,
-                    prior.shaft_radius_m,
-                    prior.junction_proximal_m,
-                )
+                junction_offsets_m(v["junction_ray"][idx], R, p, prior.T_base_camera, prior.junction_proximal_m)
             )
         vo = fit_vision_offset(per_pose)
         # written as the junction-to-tip distance itself with a zero offset, so that a reader

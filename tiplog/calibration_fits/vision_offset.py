@@ -1,8 +1,10 @@
 """The vision tip offset: junction-derived tip minus the robot's tip, along the shaft.
 
-For each accepted vision frame with a visible junction inside a static pose: the shaft axis in
-the camera frame is the observed closest point P0 with the robot's direction mapped through
-the hand-eye transform; the junction ray meets it at J (camera frame), mapped to base. The
+For each accepted vision frame with a visible junction inside a static pose: the robot's shaft
+axis is mapped into the camera frame through the hand-eye transform and the junction ray meets
+it at J (the point of the axis closest to the ray), mapped back to base. This is the geometry
+the estimator's tip update uses (the junction p - L_j u must lie on the ray); the axis seen by
+vision is not used, because its distance from the camera (P0) is ill-conditioned. The
 junction-derived tip is J + junction_proximal_m u, and the offset is its distance ahead of the
 robot's tip along u, averaged per pose (median over the pose's frames) and then over poses.
 A fusion run subtracts it (`vision_tip_offset_m` in the calibration file). Because it is fitted
@@ -32,13 +34,10 @@ class VisionOffsetResult:
 
 
 def junction_offsets_m(
-    n_left: np.ndarray,
-    n_right: np.ndarray,
     junction_ray: np.ndarray,
     R_base_tool: np.ndarray,
     p_tip_base_m: np.ndarray,
     T_base_camera: np.ndarray,
-    shaft_radius_m: float,
     junction_proximal_m: float,
     min_conditioning: float = 0.45,
 ) -> np.ndarray:
@@ -48,8 +47,8 @@ def junction_offsets_m(
     c = np.asarray(T_base_camera, float)[:3, 3]
     u_base = np.asarray(R_base_tool, float)[:, :, 2]
     u_cam = u_base @ A
-    p0 = vg.p0_from_normals(n_left, n_right, shaft_radius_m)
-    _, J_cam, cond = vg.ray_axis_intersection(junction_ray, p0, u_cam)
+    tip_cam = (np.asarray(p_tip_base_m, float) - c) @ A
+    _, J_cam, cond = vg.ray_axis_intersection(junction_ray, tip_cam, u_cam)
     J_base = J_cam @ A.T + c
     off = np.einsum("ij,ij->i", J_base + junction_proximal_m * u_base - p_tip_base_m, u_base)
     return np.where(cond >= min_conditioning, off, np.nan)
