@@ -4,6 +4,7 @@ its error split against the reference, every state delivered in order, the OpenA
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -149,7 +150,17 @@ def test_page_scripts_never_write_markup():
         text = js.read_text()
         for sink in ("innerHTML", "outerHTML", "insertAdjacentHTML", "document.write", "eval(", "new Function"):
             assert sink not in text, f"{js.name} uses {sink}"
-    assert "<script>" not in (STATIC / "index.html").read_text()  # no inline script (CSP forbids it)
+    html = (STATIC / "index.html").read_text()
+    assert "<script>" not in html  # no inline script (CSP forbids it)
+    # Works with no internet: nothing is loaded from elsewhere (no CDN, no web font).
+    for f in STATIC.iterdir():
+        text = f.read_text()
+        assert "http://" not in text and "https://" not in text and "//cdn" not in text, f.name
+    assert set(re.findall(r'(?:src|href)="([^"]+)"', html)) == {
+        "/static/dashboard.css",
+        "/static/draw.js",
+        "/static/dashboard.js",
+    }
 
 
 def test_preview_served_as_published_and_only_raster_formats(served):
