@@ -25,10 +25,12 @@ from services.fusion.evaluation import Estimate, block_windows, load_truth, scor
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.runner import FusionRunner
+from services.fusion.smoother import smooth
 from tiplog import vision_geometry as vg
 from tiplog.calibration import Calibration
 from tiplog.mcap_io import read_metadata
 
+SMOOTH = "smoothed"  # full fusion through the RTS smoother
 SUBSETS = {"full": "imu,tof,vision", "vision_only": "vision", "imu_tof": "imu,tof", "imu_vision": "imu,vision"}
 DEGRADED = ("third", "noise5", "blackout1", "blackout3", "blackout10")
 # the recording's per-frame (white) vision noise, from the bench's defaults: plane 0.06 deg,
@@ -91,7 +93,7 @@ def run_variant(msgs: list, calib: Calibration, params: Params, sensors: str) ->
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("sessions", nargs="+", help="bench sessions (sweeps, teleop, demo)")
-    ap.add_argument("--variants", default="full", help=f"comma list of {', '.join([*SUBSETS, *DEGRADED])}")
+    ap.add_argument("--variants", default="full", help=f"comma list of {', '.join([*SUBSETS, *DEGRADED, SMOOTH])}")
     ap.add_argument("--params", help="parameter YAML (default: built-in)")
     ap.add_argument("--json", help="write all results here")
     args = ap.parse_args(argv)
@@ -105,8 +107,15 @@ def main(argv: list[str] | None = None) -> int:
         blocks = block_windows(truth.trials)
         for v in variants:
             sensors = SUBSETS.get(v, SUBSETS["full"])
-            use = msgs if v in SUBSETS else _degrade(v, msgs, blocks, seed=0)
-            est, diag, cpu = run_variant(use, calib, params, sensors)
+            use = msgs if v in SUBSETS or v == SMOOTH else _degrade(v, msgs, blocks, seed=0)
+            if v == SMOOTH:
+                t0 = time.process_time()
+                sm = smooth(calib, params, use)
+                cpu = time.process_time() - t0
+                est = Estimate(np.array([s.stamp_ns for s in sm], np.int64), np.array([s.p_tip_base_m for s in sm]))
+                diag = {"resets": 0}
+            else:
+                est, diag, cpu = run_variant(use, calib, params, sensors)
             r = score_continuous(truth, est)
             row = {
                 "session": Path(path).name,

@@ -20,6 +20,7 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("session", help="bench session (MCAP) with ground truth (bench/robot, trials)")
     p.add_argument("--estimate", required=True, help="MCAP written by `tiplog fusion run` (fusion/state)")
     p.add_argument("--json", required=True, dest="json_out", help="result file to write (JSON)")
+    p.add_argument("--topic", default="fusion/state", help="estimate topic (fusion/state_smoothed for --smooth runs)")
     p.add_argument("--plots", help="folder for PNG plots (tip path and error over time per block)")
     p.add_argument("--force", action="store_true", help="overwrite an existing result file")
     p.set_defaults(func=run)
@@ -41,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             raise UserError("--plots needs matplotlib (pip install 'tiplog[plots]')") from None
     try:
-        result = evaluate(session, estimate)
+        result = evaluate(session, estimate, args.topic)
     except EvaluationError as e:
         raise UserError(str(e)) from None
     with atomic_output(args.json_out, args.force) as tmp:

@@ -145,9 +145,9 @@ SCORERS: dict[str, Callable[[Truth, Estimate], dict[str, Any]]] = {
 }
 
 
-def evaluate(session: str | Path, estimate: str | Path) -> dict[str, Any]:
+def evaluate(session: str | Path, estimate: str | Path, topic: str = "fusion/state") -> dict[str, Any]:
     truth = load_truth(session)
-    est = load_estimate(estimate)
+    est = load_estimate(estimate, topic)
     scorer = SCORERS.get(truth.protocol, score_continuous)
     return scorer(truth, est)
 

@@ -276,3 +276,27 @@ def sample_fields(R: np.ndarray, p: np.ndarray, rcm: np.ndarray, neutral: np.nda
         cz = hx * x1 - hy * x0
         out[6] = math.degrees(math.atan2(cx * u0 + cy * u1 + cz * u2, hx * x0 + hy * x1))
     return out
+
+
+@njit(cache=True)
+def transition(
+    R: np.ndarray, bg: np.ndarray, ba: np.ndarray, w_imu: np.ndarray, f_imu: np.ndarray, R_ti: np.ndarray,
+    dt: float, imu: bool,
+) -> np.ndarray:  # fmt: skip
+    """The error-state transition F (16, 16) that `propagate` applies for a step of dt [s]."""
+    F = np.eye(N)
+    for i in range(3):
+        F[i, 3 + i] = dt
+    if imu:
+        w_tool = R_ti @ (w_imu - bg)
+        f_tool = R_ti @ (f_imu - ba)
+        sk = np.zeros((3, 3))
+        sk[0, 1], sk[0, 2], sk[1, 0] = -f_tool[2], f_tool[1], f_tool[2]
+        sk[1, 2], sk[2, 0], sk[2, 1] = -f_tool[0], -f_tool[1], f_tool[0]
+        F[3:6, 6:9] = -(R @ sk) * dt
+        F[3:6, 12:15] = -(R @ R_ti) * dt
+        E = np.empty((3, 3))
+        _exp(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, E)
+        F[6:9, 6:9] = E
+        F[6:9, 9:12] = -R_ti * dt
+    return F

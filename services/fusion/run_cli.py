@@ -169,7 +169,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{src}: the filter never initialised (no usable vision frame or IMU data)")
     smoothed = None
     if args.smooth:
-        raise UserError("--smooth: the RTS smoother has not landed yet")
+        from services.fusion.smoother import smooth
+
+        smoothed = smooth(calib, params, iter_inputs(src, {}), sensors)
     diag = runner.diagnostics()
     diag["corrupt"] = diag.get("corrupt", 0) + stats.get("corrupt", 0)
     meta = {
