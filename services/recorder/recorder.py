@@ -19,7 +19,6 @@ import collections
 import logging
 import queue
 import shutil
-import socket
 import threading
 import time
 from collections.abc import Callable
@@ -28,11 +27,10 @@ from pathlib import Path
 from typing import Any
 
 from services.recorder.config import RecorderConfig
+from services.recorder.file_metadata import write_header_metadata
 from services.recorder.mcap_file import Opener, RecordingFile, open_file
-from tiplog import __version__
 from tiplog.bus import SampleInfo
 from tiplog.clock import NS_PER_S, now_ns, wall_ns
-from tiplog.config import dump
 from tiplog.v1 import device_pb2, recorder_pb2
 
 log = logging.getLogger(__name__)
@@ -390,41 +388,8 @@ class Recorder:
         return True
 
     def _write_header_metadata(self, f: RecordingFile) -> None:
-        cfg = self.config
-        f.add_metadata(
-            "session",
-            {
-                "session": self.session,
-                "file_index": self.file_index,
-                "start_reason": self._start_reason,
-                "software_version": __version__,
-                "host": socket.gethostname(),
-                "wall_start_ns": wall_ns(),
-                "clock_start_ns": now_ns(),
-                "log_time": "receive time on the recording host, CLOCK_MONOTONIC ns",
-                "publish_time": "publisher's CLOCK_MONOTONIC ns at put",
-                "sequence": "publisher's bus sequence number (low 32 bits)",
-            },
-        )
-        f.add_metadata("configuration", {"recorder": dump(cfg)})
-        for name, data in self._extra_metadata.items():
-            f.add_metadata(name, data)
-        for name, (blob, media_type) in self._extra_attachments.items():
-            f.add_attachment(name, blob, media_type, now_ns())
-        if cfg.calibration_file:
-            p = Path(cfg.calibration_file)
-            try:
-                data = p.read_bytes()
-                f.add_attachment(
-                    p.name,
-                    data,
-                    "application/yaml" if p.suffix in (".yaml", ".yml") else "application/octet-stream",
-                    now_ns(),
-                )
-                f.add_metadata("calibration", _calibration_record(p, data))
-            except OSError as e:
-                log.warning("calibration file %s unreadable: %s", p, e)
-                f.add_metadata("calibration", {"file": str(p), "error": str(e)})
+        session = {"session": self.session, "file_index": self.file_index, "start_reason": self._start_reason}
+        write_header_metadata(f, self.config, session, self._extra_metadata, self._extra_attachments)
         self._write_device(f)
 
     def _write_device(self, f: RecordingFile) -> None:
@@ -529,24 +494,3 @@ class Recorder:
                 self._on_status(self.status())
             except Exception:
                 log.exception("status callback raised")
-
-
-def _calibration_record(path: Path, data: bytes) -> dict[str, str | int]:
-    """The `calibration` metadata record: the file's name and size, and for a tiplog calibration
-    file its constants as JSON (what `Calibration.from_mcap_metadata` reads offline)."""
-    import json
-
-    import yaml
-
-    from tiplog.calibration import Calibration, CalibrationError
-
-    rec: dict[str, str | int] = {"file": str(path), "size": len(data)}
-    try:
-        doc = yaml.safe_load(data)
-        if isinstance(doc, dict) and "calibration" in doc:
-            rec["json"] = json.dumps(Calibration.from_dict(doc["calibration"], where=str(path)).to_dict())
-        else:
-            rec["note"] = "not a tiplog calibration file: attached as is"
-    except (yaml.YAMLError, CalibrationError) as e:
-        rec["note"] = f"not a usable tiplog calibration file ({str(e).splitlines()[0]}): attached as is"
-    return rec
