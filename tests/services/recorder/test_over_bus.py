@@ -141,7 +141,14 @@ def test_full_disk_alarm_on_status_recorder_stays_up(served_recorder, tmp_path):
     info = inspect(err.path)
     n = info["topics"]["device/gyro"]["count"]
     assert n > 0 and info["gaps"] == 0 and "_read_error" not in info["metadata"]
-    final = srv.status.wait(lambda s: s.topics["device/gyro"].received == 400)
+    # every message received and then written or dropped (the queue may still hold some when
+    # the 400th arrives)
+    final = srv.status.wait(
+        lambda s: (
+            s.topics["device/gyro"].received == 400
+            and s.topics["device/gyro"].written + s.topics["device/gyro"].dropped == 400
+        )
+    )
     c = final.topics["device/gyro"]
     assert c.dropped > 0 and c.written + c.dropped == 400 and n <= c.written
 
