@@ -10,7 +10,6 @@ keeps up with 15 fps on two CPU cores.
 
 from __future__ import annotations
 
-import pickle
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -186,7 +185,7 @@ def load_checkpoint(path: str | Path, device: str = "auto") -> tuple[Segmenter, 
     when it is not a checkpoint of this network."""
     try:
         ck = torch.load(str(path), map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as e:
+    except Exception as e:  # torch's unpickler raises many kinds (KeyError, UnpicklingError, ...) on junk
         raise ValueError(f"{path}: not a readable network checkpoint ({e.__class__.__name__})") from None
     if not isinstance(ck, dict) or ck.get("format") != "tiplog-shaft-unet":
         raise ValueError(f"{path}: not a tiplog shaft U-Net checkpoint")
