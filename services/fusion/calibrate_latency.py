@@ -21,7 +21,7 @@ from services.fusion.calibrate_data import CalibrationData
 from tiplog import vision_geometry as vg
 from tiplog.calibration import Calibration
 from tiplog.calibration_fits import DegenerateDataError, require
-from tiplog.calibration_fits.latency import fit_transfer, lockin
+from tiplog.calibration_fits.latency import fit_transfer, lockin_se
 from tiplog.calibration_fits.tof import TofModel
 
 G_BASE = np.array([0.0, 0.0, -9.80665])
@@ -109,7 +109,7 @@ def latency_table(data: CalibrationData, cal: Calibration) -> dict[str, Any]:
     table: dict[str, Any] = {}
     for axis in sorted({s[0] for s in segs}):
         for stream in CHANNEL_STREAMS.get(axis, ()):
-            freqs, gains = [], []
+            freqs, gains, ses = [], [], []
             for ax, f, t0, t1 in segs:
                 if ax != axis:
                     continue
@@ -119,16 +119,17 @@ def latency_table(data: CalibrationData, cal: Calibration) -> dict[str, Any]:
                     continue
                 e = _principal(ref[rs])
                 try:
-                    zr = lockin(tr, ref @ e, f, t0, t1)
-                    zm = lockin(tm, meas @ e, f, t0, t1)
+                    zr, sr = lockin_se(tr, ref @ e, f, t0, t1)
+                    zm, sm = lockin_se(tm, meas @ e, f, t0, t1)
                 except DegenerateDataError:
                     continue
                 if abs(zr) < MIN_AMPLITUDE[stream]:
                     continue
                 freqs.append(f)
                 gains.append(zm / zr)
+                ses.append(float(np.hypot(sm / max(abs(zm), 1e-12), sr / abs(zr))))
             try:
-                fit = fit_transfer(np.array(freqs), np.array(gains), f"{stream}, {axis}")
+                fit = fit_transfer(np.array(freqs), np.array(gains), f"{stream}, {axis}", np.array(ses))
             except DegenerateDataError:
                 continue
             table.setdefault(stream, {})[axis] = {
