@@ -11,7 +11,8 @@ error model's observations). Both are scored the same way, on what the estimator
   acceptance      frames accepted by the consistency gate / all frames
   trocar gate     accepted frames whose shaft line (from the two normals) passes within 3.5 mm of
                   the as-calibrated RCM / all frames
-  outliers        accepted frames with a plane residual above 1 deg / accepted frames
+  outliers        accepted frames with a plane residual above 1 deg / accepted frames; junction
+                  outliers: junction depth errors beyond 2 mm / frames with a junction
 Truth is read here, by the evaluation, never by the pipeline.
 
     python -m benchmarks.vision_accuracy --scenario teleop --seeds 1 2 3 --duration 40
@@ -71,6 +72,9 @@ def score(rows: list[dict]) -> dict:
         "junction_depth_rms_mm": float(np.sqrt(np.mean(dep**2))) if len(dep) else float("nan"),
         "junction_depth_sd_mm": float(dep.std()) if len(dep) else float("nan"),
         "junction_depth_median_abs_mm": q(np.abs(dep), 50),
+        "junction_outlier_fraction": float((np.abs(dep) > 2.0).mean()) if len(dep) else float("nan"),
+        "junction_outliers_mm": sorted(round(float(x), 2) for x in dep[np.abs(dep) > 2.0]),
+        "junction_depth_inlier_sd_mm": float(dep[np.abs(dep) <= 2.0].std()) if len(dep) else float("nan"),
         "reasons": dict(Counter(r["reason"] for r in rows if not r["accepted"]).most_common(8)),
     }
 
@@ -146,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     report["pooled"] = {"pixel": score(pix_all), "model": score(mod_all)}
     keys = ["acceptance", "trocar_pass", "outlier_fraction", "plane_residual_rms_deg", "plane_residual_median_abs_deg",
             "plane_residual_p95_abs_deg", "junction_depth_mean_mm", "junction_depth_sd_mm",
-            "junction_depth_median_abs_mm", "junction_frames"]  # fmt: skip
+            "junction_depth_median_abs_mm", "junction_depth_inlier_sd_mm", "junction_outlier_fraction",
+            "junction_frames"]  # fmt: skip
     print(f"{a.scenario}, seeds {a.seeds}, {a.duration:g} s each, every {a.every} frame(s)")
     print(f"{'':32s}" + "".join(f"{k:>18s}" for k in report))
     for tier in ("pixel", "model"):
@@ -155,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{tier + ' ' + k:32s}{vals}")
     for tier in ("pixel", "model"):
         print(f"{tier} reject reasons (pooled): {report['pooled'][tier]['reasons']}")
+        print(f"{tier} junction outliers [mm] (pooled): {report['pooled'][tier]['junction_outliers_mm']}")
     if a.json:
         with open(a.json, "w") as f:
             json.dump(report, f, indent=1)
