@@ -20,6 +20,8 @@ from services.fusion.sample import StateSample, make_sample
 from tiplog.calibration import Calibration
 from tiplog.geometry import so3_log
 
+_EYE = np.eye(16)
+
 
 def _nominal(s: State) -> tuple:
     return (s.t_ns, s.p.copy(), s.v.copy(), s.R.copy(), s.bg.copy(), s.ba.copy(), s.brho)
@@ -73,7 +75,13 @@ def smooth(calib: Calibration, params: Params, msgs, sensors: frozenset[str] = S
         if before is not None and track.state is None or before is None and track.state is not None:
             rec.breaks.add(len(rec.post))
         if ev[1] == "gyro" and track.state is not None:
-            gyro_nodes.append(len(rec.post))  # finalised when the next step starts
+            # a zero-length step right after the gyro event: the output node is the state at
+            # t_k exactly (measurements applied later without propagation belong to the next)
+            s = track.state
+            rec.post.append((*_nominal(s), s.P.copy()))
+            rec.prior.append(_nominal(s))
+            rec.gain.append(_EYE)
+            gyro_nodes.append(len(rec.post) - 1)
         runner._snaps.clear()
         runner._snap_keys.clear()
         runner._done.clear()
