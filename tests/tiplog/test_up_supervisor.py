@@ -11,6 +11,7 @@ import threading
 
 import pytest
 
+from services.bench.app import BenchConfig, write_calibration
 from tests.conftest import ROOT, free_port
 from tiplog.bus import Bus, BusConfig
 from tiplog.mcap_io import read_summary
@@ -26,8 +27,11 @@ def test_kill_9_is_restarted_reported_and_the_recording_stays_valid(tmp_path):
     cfg.write_text(
         f"recorder:\n  out_dir: {tmp_path}/rec\n  autostart: always\n  min_free_bytes: 0\ndashboard:\n  port: 18123\n"
     )
+    calibration = tmp_path / "calibration.yaml"
+    write_calibration(BenchConfig(scenario="static", calibration_file=str(calibration)))
     up = subprocess.Popen(
-        [sys.executable, "-m", "tiplog.cli", "up", "--listen", ep, "-c", str(cfg), "--services", "recorder,fusion"],
+        [sys.executable, "-m", "tiplog.cli", "up", "--listen", ep, "-c", str(cfg), "--services", "recorder,fusion"]
+        + ["--calibration", str(calibration)],
         cwd=ROOT,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
         stdout=subprocess.PIPE,
