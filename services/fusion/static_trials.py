@@ -16,12 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from services.fusion.static_filter import StaticFilter, StaticParams, initial_heading
+from services.fusion.static_filter import StaticFilter, StaticParams, inclined_rotation, initial_heading
 from tiplog import mcap_io
 from tiplog.calibration import Calibration
 from tiplog.geometry import so3_log
 
 TOF_VALID = 1
+UPDATES = frozenset({"accel", "tof", "vision"})  # what can be switched off for ablations
 # Timing and labels only: every other key of a trial (the bench's commanded or true poses) is
 # left unread.
 _TRIAL_KEYS = ("index", "kind", "axis", "magnitude", "unit", "pre_start", "pre_end", "post_start", "post_end")
@@ -119,10 +120,16 @@ def estimate_trials(
     calibration: Calibration | None = None,
     params: StaticParams | None = None,
     window_tail: float = 0.5,
+    updates: frozenset[str] = UPDATES,
 ) -> tuple[list[TrialEstimate], dict[str, int]]:
     """Run the static-trial filter over a translation or rotation session. Each window's
     estimate is the mean over its last `window_tail` fraction (the causal filter has then seen
-    most of the window). Returns the per-trial estimates and the filter's update counts."""
+    most of the window). `updates` switches measurement streams off for ablations (the gyro
+    always propagates; without vision the heading starts at 0, as nothing observes it).
+    Returns the per-trial estimates and the filter's update counts."""
+    unknown = set(updates) - UPDATES
+    if unknown:
+        raise ValueError(f"updates: unknown stream(s) {', '.join(sorted(unknown))} (choose from accel, tof, vision)")
     md = mcap_io.read_metadata(path)
     calib = calibration or Calibration.from_mcap_metadata(md, where=str(path))
     trials = trial_windows(md)
@@ -135,11 +142,14 @@ def estimate_trials(
     in_w = (t_ev >= a0) & (t_ev <= a1)
     f_mean = np.mean([e[2] for e, w in zip(ev, in_w, strict=True) if w and e[1] == 1], axis=0)
     normals = np.array([[e[2][0], e[2][1]] for e, w in zip(ev, in_w, strict=True) if w and e[1] == 3])
-    if len(normals) == 0:
+    if "vision" not in updates:
+        R0 = inclined_rotation(f_mean, calib.R_tool_imu)
+    elif len(normals) == 0:
         raise ValueError(f"{path}: no accepted vision frame in the first stationary window; heading unknown")
-    R0, _ = initial_heading(calib, f_mean, normals)
+    else:
+        R0, _ = initial_heading(calib, f_mean, normals)
     tofs = [e[2] for e, w in zip(ev, in_w, strict=True) if w and e[1] == 2]
-    L0 = filt.depth_from_tof(R0, float(np.median(tofs))) if tofs else 0.14
+    L0 = filt.depth_from_tof(R0, float(np.median(tofs))) if tofs and "tof" in updates else 0.14
     s = filt.new_state(a0, R0, L0)
     # windows as (start, end, trial index, which); collect states at gyro samples inside
     bounds = sorted(
@@ -163,11 +173,11 @@ def estimate_trials(
                 got.setdefault((i, which), []).append((s.tip(calib.rcm_base_m), s.R.copy()))
         else:
             filt.propagate(s, t)
-            if kind == 1:
+            if kind == 1 and "accel" in updates:
                 filt.update_accel(s, payload)
-            elif kind == 2:
+            elif kind == 2 and "tof" in updates:
                 filt.update_tof(s, payload)
-            else:
+            elif kind == 3 and "vision" in updates:
                 filt.update_vision(s, *payload)
     A = calib.R_base_camera.T
     out = []

@@ -135,3 +135,8 @@ def test_estimate_identical_without_truth(session, tmp_path):
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x.displacement_base_m, y.displacement_base_m)
         np.testing.assert_array_equal(x.R_rel, y.R_rel)
+
+
+def test_ablation_names_are_checked(tmp_path):
+    with pytest.raises(ValueError, match="magnetometer"):
+        estimate_trials(tmp_path / "unused.mcap", updates=frozenset({"accel", "magnetometer"}))
