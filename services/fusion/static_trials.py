@@ -119,7 +119,7 @@ def estimate_trials(
     path: str | Path,
     calibration: Calibration | None = None,
     params: StaticParams | None = None,
-    window_tail: float = 0.5,
+    window_tail: float = 0.9,
     updates: frozenset[str] = UPDATES,
 ) -> tuple[list[TrialEstimate], dict[str, int]]:
     """Run the static-trial filter over a translation or rotation session. Each window's
