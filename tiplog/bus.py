@@ -245,7 +245,7 @@ class Bus:
                 pass
             else:
                 self.holds_endpoint = ep
-                log.info(
+                log.debug(
                     "bus: no router at %s: listening there, so tiplog processes on this machine find this one "
                     "(`tiplog up` runs the whole system)",
                     ep,

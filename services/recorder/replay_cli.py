@@ -36,9 +36,14 @@ def _run(args: argparse.Namespace) -> int:
         bus: BusConfig = Field(default_factory=BusConfig)
         log_level: str = "INFO"
 
+    from tiplog import mcap_salvage
     from tiplog.userio import UserError, input_mcap, truncation_note
 
     path = input_mcap(args.recording, allow_truncated=True)
+    if not mcap_salvage.ends_in_order(path):
+        state, n = mcap_salvage.scan(path)
+        if not state.complete and n == 0:  # nothing to replay: say so before joining the bus
+            raise UserError(truncation_note(path, state, n))
     if args.speed is not None and not args.max and args.speed <= 0:
         raise UserError(f"--speed must be > 0 (got {args.speed})")
     # Standalone: with no router on this machine, the first tiplog process holds the endpoint

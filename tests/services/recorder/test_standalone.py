@@ -35,8 +35,21 @@ def test_record_and_replay_alone_find_each_other(first, endpoint, tmp_path):
     _recording(src)
     out = tmp_path / "out"
     record = [sys.executable, "-m", "tiplog.cli", "record", "run", "--start", "--out-dir", str(out)]
-    record += ["--connect", endpoint, "--set", "min_free_bytes=0"]
-    replay = [sys.executable, "-m", "tiplog.cli", "replay", str(src), "--max", "--wait", "60", "--connect", endpoint]
+    record += ["--connect", endpoint, "--set", "min_free_bytes=0", "--set", "log_level=DEBUG"]
+    replay = [
+        sys.executable,
+        "-m",
+        "tiplog.cli",
+        "--log-level",
+        "DEBUG",
+        "replay",
+        str(src),
+        "--max",
+        "--wait",
+        "60",
+        "--connect",
+        endpoint,
+    ]
     cmds = {"record": record, "replay": replay}
     procs: dict[str, subprocess.Popen] = {}
     try:
