@@ -73,3 +73,18 @@ def test_train_writes_a_checkpoint_and_resumes(recording, tmp_path, capsys):
     _, extra = load_checkpoint(ck, "cpu")
     assert len(extra["metrics"]["held_out_iou"]) == 2
     assert np.isfinite(extra["metrics"]["held_out_iou"]).all()
+
+
+def test_run_without_calibration_says_so(rendered, camera, tmp_path, capsys):
+    from tiplog.images import raw_image
+    from tiplog.mcap_io import McapWriter
+
+    src = tmp_path / "frames.mcap"
+    with McapWriter(src) as w:
+        w.write("camera/info", camera.to_calibration(0), log_time_ns=0)
+        w.write("camera/image", raw_image(rendered[0][0], 10), log_time_ns=10)
+    out = tmp_path / "obs.mcap"
+    assert main(["vision", "run", str(src), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no calibration" in err[0] and "--calibration" in err[0]
+    assert not out.exists()
