@@ -23,6 +23,7 @@ def register(p: argparse.ArgumentParser) -> None:
     t.add_argument("--lr", type=float, default=3e-4)
     t.add_argument("--every", type=int, default=3, help="use every N-th frame of each recording")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--input-step", type=int, default=5, help="the network sees the frame downsampled this many times")
     t.add_argument("--device", default="auto", help="auto, cpu or cuda")
     t.add_argument("--threads", type=int, default=0, help="CPU threads for torch (0: torch's default)")
     t.add_argument("--resume", action="store_true", help="continue from <out>.resume")
@@ -42,7 +43,7 @@ def register(p: argparse.ArgumentParser) -> None:
 
 def _positive(name: str, v: float) -> None:
     if not v > 0:
-        raise UserError(f"--{name} must be positive (got {v})")
+        raise UserError(f"--{name.replace('_', '-')} must be positive (got {v})")
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -52,7 +53,7 @@ def _train(args: argparse.Namespace) -> int:
     from services.vision.network import NetSpec, pick_device, save_checkpoint
     from services.vision.train import TrainOptions, train
 
-    for name in ("epochs", "batch", "lr", "every"):
+    for name in ("epochs", "batch", "lr", "every", "input_step"):
         _positive(name, getattr(args, name))
     if args.batch < 2:
         raise UserError("--batch must be at least 2 (half real frames, half composites)")
@@ -69,7 +70,8 @@ def _train(args: argparse.Namespace) -> int:
         print(msg, file=sys.stderr, flush=True)
 
     try:
-        frames = label_recordings(paths, NetSpec(), every=args.every, progress=say)
+        spec = NetSpec(step=args.input_step)
+        frames = label_recordings(paths, spec, every=args.every, progress=say)
     except ValueError as e:
         raise UserError(str(e)) from None
 
@@ -78,7 +80,7 @@ def _train(args: argparse.Namespace) -> int:
             save_checkpoint(tmp, model, {"metrics": metrics, "sessions": [p.name for p in paths]})
 
     opts = TrainOptions(args.epochs, args.batch, args.lr, args.seed, 0.25, str(device))
-    metrics = train(frames, args.out, opts, resume=args.resume, progress=say, write=write)
+    metrics = train(frames, args.out, opts, spec=spec, resume=args.resume, progress=say, write=write)
     say(f"wrote {args.out}: held-out IoU {metrics['held_out_iou'][-1]:.4f} after {metrics['epochs']} epochs "
         f"({metrics['train_frames']} training / {metrics['held_out_frames']} held-out frames, {metrics['seconds']} s)")  # fmt: skip
     return 0
