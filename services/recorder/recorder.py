@@ -15,7 +15,6 @@ touched from two threads; the caller waits for the reply.
 
 from __future__ import annotations
 
-import collections
 import logging
 import queue
 import shutil
@@ -27,8 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from services.recorder.config import RecorderConfig
-from services.recorder.file_metadata import write_header_metadata
+from services.recorder.counting import Counting
 from services.recorder.mcap_file import Opener, RecordingFile, open_file
+from services.recorder.session_files import SessionFiles
 from tiplog.bus import SampleInfo
 from tiplog.clock import NS_PER_S, now_ns, wall_ns
 from tiplog.v1 import device_pb2, recorder_pb2
@@ -42,22 +42,6 @@ DiskUsage = Callable[[str], Any]  # shutil.disk_usage's signature: .free in byte
 
 
 @dataclass
-class _Counts:
-    received: int = 0
-    written: int = 0
-    dropped: int = 0
-    upstream_gaps: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return {
-            "received": self.received,
-            "written": self.written,
-            "dropped": self.dropped,
-            "upstream_gaps": self.upstream_gaps,
-        }
-
-
-@dataclass
 class _Command:
     cmd: recorder_pb2.RecorderCommand
     done: threading.Event = field(default_factory=threading.Event)
@@ -67,7 +51,7 @@ class _Command:
 _STOP = object()
 
 
-class Recorder:
+class Recorder(SessionFiles):
     """Records whatever `on_sample` is given while a session runs.
 
     `opener` and `disk_usage` are seams for tests (a full disk, a shrinking free space);
@@ -91,11 +75,13 @@ class Recorder:
         self._extra_metadata = extra_metadata or {}
         self._extra_attachments = extra_attachments or {}  # name -> (data, media type)
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self._lock = threading.Lock()  # counts, queue bounds, state fields read by status()
-        self._queued_bytes = 0
-        self._queued_msgs = 0
-        self._counts: dict[str, _Counts] = collections.defaultdict(_Counts)
-        self._last_seq: dict[tuple[str, int], int] = {}
+        self._counting = Counting(config.max_queue_bytes, config.max_queue_messages)
+        # autostart=always: the start command is queued first, and every sample from now on
+        # (the subscription may already be declared) queues behind it and lands in the first
+        # file: a publisher that sees the subscription may start at once (`tiplog replay` does).
+        self._pending_start = config.autostart == "always"
+        if self._pending_start:
+            self._q.put(_Command(recorder_pb2.RecorderCommand(action=A.RECORDER_ACTION_START, reason="autostart")))
         self._recording = False  # read on Zenoh's threads without the lock (a bool is atomic)
         self._faulted = False  # a session ended on a fault: keep counting drops until stop/start
         self.state = S.RECORDER_STATE_IDLE
@@ -120,31 +106,12 @@ class Recorder:
         """Bus callback: count, check sequence, enqueue. No disk work here."""
         if info.topic == "device/status":
             self._on_device_status(payload)
-        if not self._recording:
+        if not self._recording and not self._pending_start:
             if self._faulted:  # the session was cut short: count what it is missing
-                with self._lock:
-                    c = self._counts[info.topic]
-                    c.received += 1
-                    c.dropped += 1
+                self._counting.missed(info.topic)
             return
-        n = len(payload)
-        with self._lock:
-            c = self._counts[info.topic]
-            c.received += 1
-            if info.type_name:
-                k = (info.topic, info.publisher_id)
-                last = self._last_seq.get(k)
-                if last is not None and info.seq > last + 1:
-                    c.upstream_gaps += info.seq - last - 1
-                self._last_seq[k] = info.seq if last is None else max(last, info.seq)
-            if (
-                self._queued_bytes + n > self.config.max_queue_bytes
-                or self._queued_msgs >= self.config.max_queue_messages
-            ):
-                c.dropped += 1
-                return
-            self._queued_bytes += n
-            self._queued_msgs += 1
+        if not self._counting.admit(info, len(payload)):
+            return
         self._q.put((payload, info))
 
     def _on_device_status(self, payload: bytes) -> None:
@@ -165,8 +132,6 @@ class Recorder:
     def start_thread(self) -> None:
         self._free_bytes = self._free()
         self._thread.start()
-        if self.config.autostart == "always":
-            self._q.put(_Command(recorder_pb2.RecorderCommand(action=A.RECORDER_ACTION_START, reason="autostart")))
 
     def command(self, cmd: recorder_pb2.RecorderCommand, timeout_s: float = 10.0) -> recorder_pb2.RecorderReply:
         """Run a command on the writer thread and return its reply."""
@@ -185,8 +150,7 @@ class Recorder:
             self._thread.join(timeout_s)
 
     def counts(self) -> dict[str, dict[str, int]]:
-        with self._lock:
-            return {t: c.as_dict() for t, c in sorted(self._counts.items())}
+        return self._counting.snapshot()
 
     def status(self) -> recorder_pb2.RecorderStatus:
         st = recorder_pb2.RecorderStatus(
@@ -252,35 +216,22 @@ class Recorder:
                 log.exception("writing a message of %s failed", item[1].topic)
 
     def _write(self, payload: bytes, info: SampleInfo) -> None:
-        with self._lock:
-            self._queued_bytes -= len(payload)
-            self._queued_msgs -= 1
+        self._counting.dequeued(len(payload))
         f = self._file
-        if f is None:
-            with self._lock:  # arrived while a stop or a fault was on its way
-                c = self._counts[info.topic]
-                if self.state == S.RECORDER_STATE_ERROR:
-                    c.dropped += 1
-                else:
-                    c.received -= 1
+        if f is None:  # arrived while a stop or a fault was on its way
+            self._counting.unrecorded(info.topic, dropped=self.state == S.RECORDER_STATE_ERROR)
             return
         try:
             f.write(info.topic, info.type_name, payload, info.receive_ns, info.publish_ns, info.seq)
         except OSError as e:
-            with self._lock:
-                self._counts[info.topic].dropped += 1
+            self._counting.drop(info.topic)
             self._fault(f"write failed: {e}")
             return
         except (KeyError, ValueError) as e:  # unknown schema or a type change on a topic
-            with self._lock:
-                c = self._counts[info.topic]
-                c.dropped += 1
-                first = c.dropped == 1
-            if first:  # once per topic and session: the counts carry the rest
+            if self._counting.drop(info.topic) == 1:  # once per topic and session: the counts carry the rest
                 log.warning("cannot record %s: %s", info.topic, e)
             return
-        with self._lock:
-            self._counts[info.topic].written += 1
+        self._counting.written(info.topic)
 
     def _guard(self, fn: Callable[[], None]) -> None:
         try:
@@ -311,149 +262,6 @@ class Recorder:
         too_long = cfg.max_file_duration_s and now_ns() - self._file_start_ns >= cfg.max_file_duration_s * NS_PER_S
         if too_big or too_long:
             self._split("size limit" if too_big else "duration limit")
-
-    # ---------------------------------------------------------------- commands
-    def _execute(self, cmd: recorder_pb2.RecorderCommand) -> recorder_pb2.RecorderReply:
-        a = cmd.action
-        if a == A.RECORDER_ACTION_START:
-            ok, msg = self._start(cmd.reason or "command", cmd.session)
-        elif a == A.RECORDER_ACTION_STOP:
-            self._auto_armed = False  # the operator stopped: no restart until the device reconnects
-            self._faulted = False
-            if self._file is None:
-                ok, msg = False, "not recording"
-            else:
-                path = self._end_file(cmd.reason or "stop command")
-                self._set_idle()
-                ok, msg = True, f"stopped; {path}"
-        elif a == A.RECORDER_ACTION_SPLIT:
-            ok, msg = (False, "not recording") if self._file is None else self._split(cmd.reason or "split command")
-        elif a == A.RECORDER_ACTION_MARK:
-            ok, msg = self._mark(cmd.reason)
-        elif a == A.RECORDER_ACTION_STATUS:
-            ok, msg = True, "status"
-        else:
-            ok, msg = False, f"unknown action {a}"
-        return recorder_pb2.RecorderReply(ok=ok, message=msg, status=self.status())
-
-    def _start(self, reason: str, name: str) -> tuple[bool, str]:
-        if self._file is not None:
-            return False, f"already recording to {self._file.path}"
-        self._free_bytes = free = self._free()
-        if 0 <= free < self.config.min_free_bytes:
-            self._alarm_error(f"not started: free space {free / 2**20:.0f} MiB below the reserve")
-            return False, self.alarm
-        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
-        self.session = safe or self.config.session_prefix + time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-        self._faulted = False
-        with self._lock:
-            self._counts.clear()
-            self._last_seq.clear()
-        self.file_index = 0
-        self._bytes_before = 0
-        self._events = 0
-        self._session_start_ns = now_ns()
-        self._start_reason = reason
-        if not self._open_file():
-            return False, self.alarm
-        self.alarm = ""
-        log.info("recording session %s (%s) to %s", self.session, reason, self._file.path if self._file else "?")
-        return True, f"recording to {self._file.path if self._file else '?'}"
-
-    def _open_file(self) -> bool:
-        try:
-            self.out_dir.mkdir(parents=True, exist_ok=True)
-            path = self.out_dir / f"{self.session}_{self.file_index:03d}.mcap"
-            while path.exists():  # a session name used before: never overwrite a recording
-                self.file_index += 1
-                path = self.out_dir / f"{self.session}_{self.file_index:03d}.mcap"
-            f = RecordingFile(
-                path, compression=self.config.compression, chunk_size=self.config.chunk_size_bytes, opener=self._opener
-            )
-        except OSError as e:
-            self._alarm_error(f"cannot open a file in {self.out_dir}: {e}")
-            return False
-        self._file = f
-        self._file_start_ns = now_ns()
-        self._device_written = False
-        try:
-            self._write_header_metadata(f)
-            f.flush()
-        except OSError as e:
-            self._fault(f"write failed: {e}")
-            return False
-        self._recording = True
-        self.state = S.RECORDER_STATE_RECORDING
-        self._notify()
-        return True
-
-    def _write_header_metadata(self, f: RecordingFile) -> None:
-        session = {"session": self.session, "file_index": self.file_index, "start_reason": self._start_reason}
-        write_header_metadata(f, self.config, session, self._extra_metadata, self._extra_attachments)
-        self._write_device(f)
-
-    def _write_device(self, f: RecordingFile) -> None:
-        d = self._device
-        if d is None or self._device_written:
-            return
-        f.add_metadata(
-            "device",
-            {
-                "firmware": d.firmware,
-                "device_id": d.device_id,
-                "port": d.port,
-                "protocol_version": d.protocol_version,
-                "nominal_rates_hz": dict(d.nominal_rates_hz),
-            },
-        )
-        self._device_written = True
-
-    def _end_file(self, reason: str) -> str:
-        """Write the closing metadata and finish the file; salvage it when that fails."""
-        f = self._file
-        self._file = None
-        if f is None:
-            return ""
-        self._last_path = str(f.path)
-        self._bytes_before += f.bytes_written
-        try:
-            self._write_device(f)
-            f.add_metadata("recorder_counts", self.counts())
-            f.add_metadata(
-                "recorder_end",
-                {
-                    "reason": reason,
-                    "wall_end_ns": wall_ns(),
-                    "file_written": f.written_by_topic,
-                    "events": self._events,
-                },
-            )
-            f.close()
-        except OSError as e:
-            log.error("finishing %s failed: %s", f.path, e)
-            f.salvage()
-        log.info("closed %s (%s)", f.path, reason)
-        return str(f.path)
-
-    def _split(self, reason: str) -> tuple[bool, str]:
-        old = self._end_file(reason)
-        self.file_index += 1
-        if not self._open_file():
-            return False, self.alarm
-        return True, f"split: {old} -> {self._file.path if self._file else '?'}"
-
-    def _mark(self, label: str) -> tuple[bool, str]:
-        f = self._file
-        if f is None:
-            return False, "not recording"
-        self._events += 1
-        t = now_ns()
-        try:
-            f.add_metadata(f"event_{self._events:04d}", {"label": label, "log_time_ns": t, "wall_ns": wall_ns()})
-        except OSError as e:
-            self._fault(f"write failed: {e}")
-            return False, self.alarm
-        return True, f"event {self._events} marked at {t} ns"
 
     # ---------------------------------------------------------------- state
     def _fault(self, alarm: str) -> None:
