@@ -120,10 +120,9 @@ def run(args: argparse.Namespace) -> int:
     names = [s.strip() for s in args.services.split(",") if s.strip()]
     unknown = sorted(set(names) - set(DEFAULT_SERVICES))
     if unknown:
-        print(
-            f"tiplog up: unknown service(s) {', '.join(unknown)}; known: {', '.join(DEFAULT_SERVICES)}", file=sys.stderr
-        )
-        return 2
+        raise UserError(f"--services: unknown service(s) {', '.join(unknown)}; known: {', '.join(DEFAULT_SERVICES)}")
+    if args.duration is not None and not args.duration > 0:
+        raise UserError(f"--duration must be positive (got {args.duration})")
     if args.config:
         load_section(args.config, "up")  # a missing file or a YAML error stops here, named
     run_dir = Path(tempfile.mkdtemp(prefix="tiplog-up-"))
