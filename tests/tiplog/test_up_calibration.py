@@ -44,3 +44,15 @@ def test_without_bench_or_file_nothing_is_passed(tmp_path):
 def test_a_missing_file_is_named(tmp_path):
     with pytest.raises(UserError, match="nope.yaml: no such calibration file"):
         calibration_sets(["recorder"], str(tmp_path / "nope.yaml"), tmp_path)
+
+
+def test_the_demo_banner_says_where_to_look_where_recordings_go_and_how_to_stop():
+    from tests.conftest import ROOT
+    from tiplog.up import DEFAULT_SERVICES, banner
+
+    text = banner(DEFAULT_SERVICES, str(ROOT / "config" / "demo.yaml"))
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    assert len(lines) == 4  # one short block
+    assert "dashboard   http://127.0.0.1:8000" in text
+    assert "recordings  ./recordings/" in text and "autostart: always" in text
+    assert "stop        Ctrl-C" in text
