@@ -3,6 +3,9 @@
 FROM python:3.11-slim
 WORKDIR /app
 ENV PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
+# numba (fusion's kernels) caches compiled code beside the source by default; /app is not
+# writable by the service user, so its cache goes where it may write.
+ENV NUMBA_CACHE_DIR=/tmp/numba-cache
 # The repository minus what .dockerignore leaves out (venv, tests, recordings, git).
 COPY . .
 ARG EXTRAS=""
