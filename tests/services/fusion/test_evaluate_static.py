@@ -40,6 +40,7 @@ def sessions(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_translation_keys_and_plausible_accuracy(sessions, tmp_path, capsys):
     res = tmp_path / "t.json"
     assert main([str(sessions["translation"]), "--json", str(res)]) == 0
@@ -51,6 +52,7 @@ def test_translation_keys_and_plausible_accuracy(sessions, tmp_path, capsys):
     assert main([str(sessions["translation"]), "--json", str(res)]) == 2  # exists, no --force
 
 
+@pytest.mark.slow
 def test_rotation_keys_and_plausible_accuracy(sessions, tmp_path):
     res = tmp_path / "r.json"
     assert main([str(sessions["rotation"]), "--json", str(res)]) == 0

@@ -42,6 +42,7 @@ def test_heading_drift_sees_a_field_change_that_tilt_does_not():
     assert tilt == pytest.approx(0.0, abs=1e-5)
 
 
+@pytest.mark.slow
 def test_study_on_a_short_rotation_session(tmp_path, capsys):
     rot = tmp_path / "rot.mcap"
     assert (
