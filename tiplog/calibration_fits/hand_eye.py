@@ -72,11 +72,11 @@ def closed_form(B: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         FIT,
         "all motions rotate about parallel axes: rotate the tool about at least two different axes",
     )
-    M = beta.T @ alpha  # sum beta alpha^T... as (3, 3) with alpha = R_X beta
-    w, V = np.linalg.eigh(M.T @ M)
-    R_X = V @ np.diag(1.0 / np.sqrt(w)) @ V.T @ M.T
-    U, _, Vt = np.linalg.svd(R_X)
-    R_X = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    # alpha = R_X beta: Park and Martin's (M^T M)^-1/2 M^T with M = sum beta alpha^T, written as
+    # the SVD (Kabsch) solution, which also holds when the motions span only two axes
+    M = beta.T @ alpha
+    U, _, Vt = np.linalg.svd(M)
+    R_X = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
     RA, tA, tB = A[big][:, :3, :3], A[big][:, :3, 3], Bm[big][:, :3, 3]
     lhs = (RA - np.eye(3)).reshape(-1, 3)
     rhs = (tB @ R_X.T - tA).reshape(-1)

@@ -32,7 +32,8 @@ def _solve(p: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, float]:
     A = P.sum(0)
     b = np.einsum("nij,nj->i", P, p)
     lam = np.linalg.eigvalsh(A / len(p))
-    return np.linalg.solve(A, b), float(np.degrees(np.arcsin(np.sqrt(max(lam[0], 0.0)))))
+    spread = float(np.degrees(np.arcsin(np.sqrt(np.clip(lam[0], 0.0, 1.0)))))
+    return np.linalg.lstsq(A, b, rcond=None)[0], spread
 
 
 def line_distance(x: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.ndarray:

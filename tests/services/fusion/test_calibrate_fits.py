@@ -37,6 +37,8 @@ def test_rcm_recovers_the_crossing_point_and_refuses_parallel_lines():
     R_par = np.repeat(R[:1], 5, 0)
     with pytest.raises(DegenerateDataError, match="do not cross"):
         fit_rcm(p[:1] + np.arange(5)[:, None] * 1e-3 * R[0, :, 2], R_par)
+    with pytest.raises(DegenerateDataError, match="do not cross"):  # one pose held: exactly singular
+        fit_rcm(np.repeat(p[:1], 5, 0), R_par)
     with pytest.raises(DegenerateDataError, match="at least 3"):
         fit_rcm(p[:2], R[:2])
 

@@ -65,6 +65,8 @@ def test_hand_eye_refuses_rotations_about_one_axis_and_too_few_poses():
     B, C = _poses(9, 10, X, noise=0.0, axes=(0, 0, 1))  # roll only
     with pytest.raises(DegenerateDataError, match="parallel axes"):
         fit_hand_eye(B, C)
+    two_axes = fit_hand_eye(*_poses(13, 10, X, noise=0.0, axes=(1, 0, 1)))  # pitch and roll only
+    assert np.allclose(two_axes.closed_form_T_base_camera, X, atol=1e-9)
     with pytest.raises(DegenerateDataError, match="at least 3 poses"):
         fit_hand_eye(B[:4], C[:4], heldout=2)
 
