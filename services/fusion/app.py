@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from services.fusion.live import LiveFusion
 from services.fusion.params import Params, ParamsError, mode_name, parse_sensors
@@ -27,7 +27,7 @@ class FusionConfig(ServiceConfig):
     """Configuration of the fusion service (section `fusion:` of the YAML file)."""
 
     # Required: the filter never runs blind. A tiplog calibration YAML file.
-    calibration_file: str | None = Field(None, validate_default=True)
+    calibration_file: str | None = None
     params_file: str | None = None  # filter parameters (YAML); default: the built-in set
     sensors: str = "imu,tof,vision"  # any subset, for ablations
     diagnostics_hz: float = Field(2.0, ge=1.0, le=10.0)
@@ -38,14 +38,21 @@ class FusionConfig(ServiceConfig):
     # file: `tiplog fusion run` on it reproduces the live trajectory exactly.
     input_log_file: str | None = None
 
+    @model_validator(mode="after")
+    def _calibration_given(self) -> FusionConfig:
+        # After the fields, so that another bad value still gets its one line alone.
+        if not self.calibration_file:
+            raise ValueError(
+                "calibration_file: fusion has no calibration: give a calibration file (tiplog calibrate "
+                "writes one; `tiplog up` passes the bench's), e.g. --set calibration_file=calibration.yaml"
+            )
+        return self
+
     @field_validator("calibration_file")
     @classmethod
     def _calibration_loads(cls, v: str | None) -> str | None:
         if not v:
-            raise ValueError(
-                "fusion has no calibration: give a calibration file (tiplog calibrate writes one; "
-                "`tiplog up` passes the bench's), e.g. --set calibration_file=calibration.yaml"
-            )
+            return v
         try:
             Calibration.load_yaml(v)
         except CalibrationError as e:
