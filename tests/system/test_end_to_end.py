@@ -80,6 +80,8 @@ def test_whole_system_60s_rates_live_vs_offline_and_dashboard(tmp_path):
     assert rms(err_offline) < 10.0  # a tracking filter, not a frozen one
 
     # The start-up transient the dashboard engineer saw (depths up to 3.9 m): the live depth
-    # stays within 20 mm of the bench's range from the first state on.
+    # stays within 20 mm of the bench's range from the first state on. Still seen on some runs
+    # (seed 1: 224 states in the first 1.1 s at 0.68-4.03 m, one 'innovation' reset), and
+    # `tiplog fusion run` on the same recording repeats it state for state: the filter's start.
     lo, hi = truth.depth_mm.min(), truth.depth_mm.max()
     assert live.depth_mm.min() > lo - 20 and live.depth_mm.max() < hi + 20, (live.depth_mm.min(), live.depth_mm.max())
