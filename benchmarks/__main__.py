@@ -1,23 +1,198 @@
-"""Run every benchmark module in this folder in turn."""
+"""`make bench` (`python -m benchmarks`): the system's benchmarks, each run as its own process
+(`python -m benchmarks.<name> ...`, every module keeps its own `main`), then ONE table:
+benchmark, figure, unit, target, pass.
+
+    python -m benchmarks            # full runs (tens of minutes on a small machine)
+    python -m benchmarks --quick    # short runs of each (a few minutes)
+    python -m benchmarks --only bus_latency,fusion_offline
+
+Every other module in this folder still runs alone (`python -m benchmarks.<name> --help`).
+"""
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
+import argparse
+import json
+import os
+import re
+import subprocess
 import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
 
-def main() -> int:
-    here = Path(__file__).parent
-    names = sorted(m.name for m in pkgutil.iter_modules([str(here)]) if not m.name.startswith("_"))
-    for name in names:
-        print(f"== benchmarks.{name}")
-        mod = importlib.import_module(f"benchmarks.{name}")
-        rc = mod.main([]) if hasattr(mod, "main") else 0
-        if rc:
-            return rc
-    return 0
+
+@dataclass
+class Row:
+    benchmark: str
+    figure: str
+    value: float | None
+    unit: str
+    target: str
+    ok: bool | None  # None: no target (a figure for comparison)
+
+
+def _json_line(out: str) -> dict:
+    for line in reversed(out.splitlines()):
+        if line.startswith("{"):
+            return json.loads(line)
+    raise ValueError("no JSON line in the output")
+
+
+def _num(pattern: str, out: str) -> float:
+    m = re.search(pattern, out)
+    if not m:
+        raise ValueError(f"not found in the output: {pattern}")
+    return float(m.group(1))
+
+
+def fusion_offline(out: str, _tmp: Path) -> list[Row]:
+    r = _json_line(out)
+    v = r["filter_s_per_120s"]
+    return [Row("fusion_offline", "filter CPU per 120 s block", v, "s", "<= 2.4", v <= 2.4)]
+
+
+def vision_frame(_out: str, tmp: Path) -> list[Row]:
+    r = json.loads((tmp / "vision_frame.json").read_text())
+    p50 = r["per_frame"]["total_ms"]["p50"]
+    cpu = r["per_frame"].get("cpu_ms", {}).get("p50")
+    rows = [Row("vision_frame", "per frame, wall p50 (1 thread)", p50, "ms", "<= 66.7 (15 fps)", p50 <= 66.7)]
+    if cpu is not None:
+        rows.append(Row("vision_frame", "per frame, CPU p50 (1 thread)", cpu, "ms", "<= 66.7 (15 fps)", cpu <= 66.7))
+    return rows
+
+
+def recorder(out: str, _tmp: Path) -> list[Row]:
+    v = _num(r"lz4: sustained x([\d.]+) of the live rate", out)
+    return [Row("recorder_throughput", "sustained, zero drops (lz4)", v, "x live rate", ">= 1", v >= 1)]
+
+
+def bus_latency(out: str, _tmp: Path) -> list[Row]:
+    r = _json_line(out)
+    rows = []
+    for t in r["rows"]:
+        name = "tiplog bus" if t["transport"] == "tiplog" else "raw Zenoh"
+        ok = t["lost"] == 0 and t["p99_ms"] < 5.0 if t["transport"] == "tiplog" else None
+        rows.append(Row("bus_latency 1 kHz", f"{name} p50", t["p50_ms"], "ms", "", None))
+        rows.append(Row("bus_latency 1 kHz", f"{name} p99 ({t['lost']} lost)", t["p99_ms"], "ms", "< 5, 0 lost", ok))
+    return rows
+
+
+def display_lag(out: str, _tmp: Path) -> list[Row]:
+    p95 = _num(r"websocket message leaves: p50 [\d.]+ ms, p95 ([\d.]+) ms", out)
+    p50 = _num(r"websocket message leaves: p50 ([\d.]+) ms", out)
+    return [
+        Row("display_lag (whole system)", "state time -> websocket, p50", p50, "ms", "<= 33 (paper)", p50 <= 33),
+        Row("display_lag (whole system)", "state time -> websocket, p95", p95, "ms", "", None),
+    ]
+
+
+def cpu_share(out: str, _tmp: Path) -> list[Row]:
+    r = _json_line(out)
+    rows = []
+    for n, s in r["services"].items():
+        rows.append(Row(f"demo CPU ({r['tier']} tier)", n, s["cpu_percent"], "% of a core", "", None))
+    total = sum(s["cpu_percent"] for s in r["services"].values())
+    cap = 100 * (r["cpu_count"] or 1)
+    rows.append(Row(f"demo CPU ({r['tier']} tier)", "all services", total, "% of a core", f"< {cap}", total < cap))
+    return rows
+
+
+# name -> (module, full args, quick args, parser)
+BENCHMARKS: dict[str, tuple[str, list[str], list[str], Callable[[str, Path], list[Row]]]] = {
+    "fusion_offline": ("fusion_offline", ["--json"], ["--json", "--seconds", "30", "--repeat", "1"], fusion_offline),
+    "vision_frame": (
+        "vision_frame",
+        ["--json", "{tmp}/vision_frame.json"],
+        ["--json", "{tmp}/vision_frame.json", "--duration", "3", "--frames", "15", "--skip-run"],
+        vision_frame,
+    ),
+    "recorder": (
+        "recorder_throughput",
+        [],
+        ["--compression", "lz4", "--multiples", "1", "2", "--seconds", "3"],
+        recorder,
+    ),
+    "bus_latency": ("system_bus_latency", ["--json"], ["--json", "--seconds", "3"], bus_latency),
+    "display_lag": ("dashboard_e2e", [], ["--seconds", "8"], display_lag),
+    "cpu_share": (
+        "system_soak",
+        ["--json", "--tier", "pixel", "--seconds", "120"],
+        ["--json", "--tier", "pixel", "--seconds", "30"],
+        cpu_share,
+    ),
+}
+
+
+def run_one(name: str, quick: bool, tmp: Path, timeout_s: float) -> tuple[list[Row], str]:
+    module, full, short, parse = BENCHMARKS[name]
+    args = [a.replace("{tmp}", str(tmp)) for a in (short if quick else full)]
+    cmd = [sys.executable, "-m", f"benchmarks.{module}", *args]
+    print(f"== {' '.join(['python', *cmd[1:]])}", flush=True)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    try:
+        p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return [Row(name, "timed out", None, "", f"< {timeout_s:g} s", False)], ""
+    sys.stdout.write(p.stdout)
+    if p.returncode != 0:
+        tail = p.stderr.strip().splitlines()[-1:] or ["?"]
+        return [Row(name, f"failed (exit {p.returncode}): {tail[0][:60]}", None, "", "", False)], p.stdout
+    try:
+        return parse(p.stdout, tmp), p.stdout
+    except (ValueError, KeyError, OSError) as e:
+        return [Row(name, f"unreadable output: {e}"[:70], None, "", "", False)], p.stdout
+
+
+def table(rows: list[Row]) -> str:
+    head = ("benchmark", "figure", "value", "unit", "target", "pass")
+    body = [
+        (
+            r.benchmark,
+            r.figure,
+            "-" if r.value is None else f"{r.value:.3g}" if abs(r.value) < 100 else f"{r.value:.0f}",
+            r.unit,
+            r.target or "-",
+            "-" if r.ok is None else "PASS" if r.ok else "FAIL",
+        )
+        for r in rows
+    ]
+    w = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
+    lines = ["  ".join(c.ljust(w[i]) for i, c in enumerate(x)).rstrip() for x in [head, *body]]
+    lines.insert(1, "  ".join("-" * n for n in w))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="short runs of each benchmark")
+    ap.add_argument("--only", help=f"comma list of {', '.join(BENCHMARKS)}")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="seconds each benchmark may take")
+    ap.add_argument("--json", help="also write the table here (JSON)")
+    a = ap.parse_args(argv)
+    names = a.only.split(",") if a.only else list(BENCHMARKS)
+    unknown = [n for n in names if n not in BENCHMARKS]
+    if unknown:
+        print(f"--only: unknown benchmark(s) {', '.join(unknown)}; known: {', '.join(BENCHMARKS)}", file=sys.stderr)
+        return 2
+    rows: list[Row] = []
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="tiplog-bench-") as d:
+        for name in names:
+            got, _ = run_one(name, a.quick, Path(d), a.timeout)
+            rows += got
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(
+        f"\n{'quick' if a.quick else 'full'} run, {time.monotonic() - t0:.0f} s; host load {load:.1f} on {os.cpu_count()} CPUs"
+    )
+    print(table(rows))
+    if a.json:
+        Path(a.json).write_text(json.dumps([r.__dict__ for r in rows], indent=1))
+    return 1 if any(r.ok is False for r in rows) else 0
 
 
 if __name__ == "__main__":
