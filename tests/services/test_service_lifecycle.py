@@ -11,6 +11,7 @@ import threading
 
 import pytest
 
+from services.bench.app import BenchConfig, write_calibration
 from tests.conftest import ROOT
 from tiplog.bus import Bus
 
@@ -40,7 +41,12 @@ def test_service_joins_and_stops_on_signal(name, sig, bus_pair_configs, tmp_path
 
     with Bus(listen_cfg) as bus:
         bus.watch_alive(on_alive)
-        proc = _start(name, listen_cfg.listen[0], listen_cfg.prefix)
+        extra: list[str] = []
+        if name == "fusion":  # fusion refuses to run without a calibration (tested in its own folder)
+            calibration = tmp_path / "calibration.yaml"
+            write_calibration(BenchConfig(scenario="static", calibration_file=str(calibration)))
+            extra = ["--set", f"calibration_file={calibration}"]
+        proc = _start(name, listen_cfg.listen[0], listen_cfg.prefix, *extra)
         try:
             assert up.wait(30), f"{name} never declared its liveliness token"
             proc.send_signal(sig)
