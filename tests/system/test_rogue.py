@@ -1,0 +1,80 @@
+"""A rogue process on the bus: garbage, wrongly typed and oversized payloads on every tiplog
+key while `tiplog up` runs the whole system. Nothing crashes (no service restarted), states
+keep reaching the page, the decode errors are counted (fusion's diagnostics) and logged by
+the services that subscribe, and the recording stays valid."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import ROOT
+from tests.system.harness import UpRun
+from tiplog.mcap_io import read_summary
+from tiplog.topics import TOPICS
+
+pytestmark = pytest.mark.slow
+
+SERVICES = ["bench", "sensor_gateway", "fusion", "recorder", "dashboard"]
+
+ROGUE = """
+import sys, struct, zenoh, numpy as np
+endpoint, topics = sys.argv[1], sys.argv[2].split(",")
+conf = zenoh.Config()
+conf.insert_json5("mode", '"client"')
+conf.insert_json5("connect/endpoints", '["%s"]' % endpoint)
+conf.insert_json5("scouting/multicast/enabled", "false")
+rng = np.random.default_rng(7)
+with zenoh.open(conf) as s:
+    pubs = {t: s.declare_publisher("tiplog/" + t) for t in topics}
+    big = rng.integers(0, 256, 16 * 2**20, dtype=np.uint8).tobytes()
+    for rnd in range(20):
+        for t, p in pubs.items():
+            junk = rng.integers(0, 256, int(rng.integers(1, 300)), dtype=np.uint8).tobytes()
+            p.put(junk)                                                   # no attachment
+            p.put(junk, attachment=struct.pack("<QQQ", rnd, 0, 99) + b"tiplog.v1.Gyro")   # wrong type
+            p.put(junk, attachment=struct.pack("<QQQ", rnd, 0, 99) + b"no.such.Type")
+            p.put(b"\\xff" * 64, attachment=struct.pack("<QQQ", rnd, 0, 99) + b"tiplog.v1.FusionState")
+        if rnd % 5 == 0:
+            for p in pubs.values():
+                p.put(big)                                                # oversized: 16 MiB
+print("rogue done", flush=True)
+"""
+
+
+def test_rogue_publisher_on_every_key(tmp_path):
+    with UpRun(tmp_path, SERVICES) as up:
+        up.wait_status(up.all_running, timeout_s=120)
+        up.poll_api("/api/state", lambda a: a["received"] > 200, 120)
+        before = up.latest_status()
+        out = subprocess.run(
+            [sys.executable, "-c", ROGUE, up.endpoint, ",".join(TOPICS)],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
+        assert out.returncode == 0 and "rogue done" in out.stdout, out.stderr[-2000:]
+        # States keep reaching the page after the storm.
+        n0 = up.api("/api/state")["received"]
+        up.poll_api("/api/state", lambda a: a["received"] > n0 + 200, 60)
+        # fusion counts what it could not decode, per topic, in its diagnostics.
+        diag = up.poll_api(
+            "/api/status",
+            lambda a: int((a["diagnostics"] or {}).get("rejected", {}).get("device/gyro:undecodable", 0)) > 0,
+            30,
+        )["diagnostics"]
+        for topic in ("device/gyro", "device/accel", "device/tof", "vision/observation"):
+            assert int(diag["rejected"].get(f"{topic}:undecodable", 0)) >= 20, diag["rejected"]
+        after = up.latest_status()
+        for run in after.services:  # nothing crashed: no restart, the same processes
+            assert run.restarts == 0, run
+            assert run.pid == up.run_of(before, run.service).pid, run
+        assert up.stop() == 0, up.log_tail()
+    log = up.stderr_path.read_text(errors="replace")
+    assert "Traceback" not in log, log[-3000:]
+    assert "undecodable payload on" in log
+    (rec,) = up.recordings()
+    assert read_summary(rec) is not None
