@@ -12,7 +12,7 @@ import pytest
 
 from tests.conftest import ROOT
 from tests.system.harness import UpRun
-from tiplog.mcap_io import read_summary
+from tiplog.mcap_io import read_messages, read_summary
 from tiplog.topics import TOPICS
 
 pytestmark = pytest.mark.slow
@@ -20,7 +20,8 @@ pytestmark = pytest.mark.slow
 SERVICES = ["bench", "sensor_gateway", "fusion", "recorder", "dashboard"]
 
 ROGUE = """
-import sys, struct, zenoh, numpy as np
+import sys, zenoh, numpy as np
+from tiplog.bus import encode_attachment
 endpoint, topics = sys.argv[1], sys.argv[2].split(",")
 conf = zenoh.Config()
 conf.insert_json5("mode", '"client"')
@@ -34,9 +35,11 @@ with zenoh.open(conf) as s:
         for t, p in pubs.items():
             junk = rng.integers(0, 256, int(rng.integers(1, 300)), dtype=np.uint8).tobytes()
             p.put(junk)                                                   # no attachment
-            p.put(junk, attachment=struct.pack("<QQQ", rnd, 0, 99) + b"tiplog.v1.Gyro")   # wrong type
-            p.put(junk, attachment=struct.pack("<QQQ", rnd, 0, 99) + b"no.such.Type")
-            p.put(b"\\xff" * 64, attachment=struct.pack("<QQQ", rnd, 0, 99) + b"tiplog.v1.FusionState")
+            p.put(junk, attachment=encode_attachment(rnd, 0, 99, "tiplog.v1.RecorderStatus"))  # wrong type
+            p.put(junk, attachment=encode_attachment(rnd, 0, 99, "no.such.Type"))
+            p.put(junk, attachment=b"\\x01\\x02")                         # attachment cut short
+            for name in ("tiplog.v1.Gyro", "tiplog.v1.FusionState", "tiplog.v1.Tof"):   # right name, bad bytes
+                p.put(b"\\xff" * 64, attachment=encode_attachment(rnd, 0, 99, name))
         if rnd % 5 == 0:
             for p in pubs.values():
                 p.put(big)                                                # oversized: 16 MiB
@@ -78,3 +81,15 @@ def test_rogue_publisher_on_every_key(tmp_path):
     assert "undecodable payload on" in log
     (rec,) = up.recordings()
     assert read_summary(rec) is not None
+    # The recorder archives payloads undecoded, so the rogue's forged ones are in the file too;
+    # the offline filter still reads it and tracks.
+    out = tmp_path / "offline.mcap"
+    p = subprocess.run(
+        [sys.executable, "-m", "tiplog.cli", "fusion", "run", str(rec), "--out", str(out), "--quiet"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert sum(1 for _ in read_messages(out, ["fusion/state"])) > 200
