@@ -24,6 +24,11 @@ NOMINAL_HZ = {
     "bench/robot": 200.0,
     "vision/observation": 15.0,
     "fusion/state": 200.0,  # one state per gyro sample
+    "fusion/tf": 200.0,
+    "fusion/diagnostics": 2.0,
+    "bench/tf": 30.0,
+    "camera/info": 1.0,
+    "device/status": 1.0,
     "recorder/status": 1.0,
     "system/supervisor": 1.0,
 }
