@@ -61,12 +61,16 @@ def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window
             last = up.latest_status()
             restarts = {r.service: r.restarts for r in last.services} if last else {}
             assert up.stop() == 0, up.log_tail()
-        rates = {}
+        rates: dict[str, dict] = {}
         recorder_dropped = 0
         for rec in up.recordings():
             for t, r in topic_rates(rec).items():
-                prev = rates.get(t, {"count": 0, "seq_gaps": 0})
-                rates[t] = {"count": prev["count"] + r.count, "seq_gaps": prev["seq_gaps"] + r.seq_gaps}
+                prev = rates.get(t, {"count": 0, "seq_gaps": 0, "rate_hz": 0.0})
+                rates[t] = {
+                    "count": prev["count"] + r.count,
+                    "seq_gaps": prev["seq_gaps"] + r.seq_gaps,
+                    "rate_hz": max(prev["rate_hz"], round(float(r.rate_hz), 2)),
+                }
             for m in read_messages(rec, ["recorder/status"]):
                 recorder_dropped = max(recorder_dropped, int(getattr(m.message, "dropped", 0)))
     rows = {}
@@ -96,6 +100,7 @@ def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window
         "recorder_dropped": recorder_dropped,
         "seq_gaps": {t: r["seq_gaps"] for t, r in rates.items() if r["seq_gaps"]},
         "messages": sum(r["count"] for r in rates.values()),
+        "rates_hz": {t: r["rate_hz"] for t, r in sorted(rates.items())},
         "load_average_1min": os.getloadavg()[0],
         "cpu_count": os.cpu_count(),
     }
@@ -124,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{n:15s} {s['cpu_percent']:6.1f} {s['rss_first_mib']:8.1f} M {s['rss_last_mib']:7.1f} M "
             f"{s['rss_change_percent']:6.1f}% {s['rss_max_mib']:6.1f} M {r['restarts'].get(n, 0):8d}"
         )
+    print("achieved rates [Hz]: " + ", ".join(f"{t} {hz:g}" for t, hz in r["rates_hz"].items()))
     print(f"drops: recorder {r['recorder_dropped']}, sequence gaps {r['seq_gaps'] or 'none'}")
     if a.json:
         print(json.dumps(r))
