@@ -4,7 +4,9 @@ parameters: full fusion, sensor subsets, degraded vision, as the paper's tables.
 Degradations are applied to the same recordings, as the paper did: `third` keeps one accepted
 frame in three, `noise5` adds white tangent-plane and junction noise so that the per-frame
 vision noise is five times the recording's (seeded), `blackout1/3/10` blanks vision for
-1, 3 or 10 s at sixteen evenly spaced points of each block. The filter never sees the truth;
+1, 3 or 10 s at sixteen points of each session, shared over its blocks (the paper's sixteen
+were over one recording holding both the sweeps and the teleoperated blocks, so this is the
+harsher reading). The filter never sees the truth;
 scoring uses `services.fusion.evaluation` (first 20 % of each block excluded).
 
     python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...] [--json OUT]
@@ -39,15 +41,27 @@ PLANE_WHITE_DEG = 0.06
 JUNCTION_WHITE_M = 0.30e-3
 
 
+def _blackout_spans(blocks: list[tuple[str, int, int]], length_ns: int, count: int = 16) -> list[tuple[int, int]]:
+    """`count` blackouts of `length_ns` over the session's blocks, shared out in proportion to
+    each block's length and centred in equal slices of it, never overlapping (the paper blanks
+    vision at sixteen points of its recording; placed per block they would overlap into one
+    block-long blackout)."""
+    total = sum(b - a for _, a, b in blocks)
+    spans = []
+    for _, a, b in blocks:
+        n = min(int(round(count * (b - a) / total)), (b - a) // max(length_ns, 1)) if total > 0 else 0
+        for j in range(int(n)):
+            mid = a + (j + 0.5) * (b - a) / n
+            spans.append((int(mid - length_ns / 2), int(mid + length_ns / 2)))
+    return spans
+
+
 def _degrade(name: str, msgs: list, blocks: list[tuple[str, int, int]], seed: int) -> list:
     rng = np.random.default_rng(seed)
     out = []
     if name.startswith("blackout"):
         length = int(float(name[len("blackout") :]) * 1e9)
-        spans = []
-        for _, a, b in blocks:
-            starts = np.linspace(a, b - length, 16) if b - a > length else []
-            spans += [(int(s), int(s) + length) for s in starts]
+        spans = _blackout_spans(blocks, length)
     accepted = 0
     for topic, msg, arr in msgs:
         if topic == "vision/observation" and msg.accepted:
@@ -125,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
                 "block_mean_mm": float(np.mean([b["tip_rmse_mm"] for b in r["blocks"]])),
                 "cpu_s": round(cpu, 2),
                 "resets": diag["resets"],
+                "reset_reasons": diag.get("reset_reasons", {}),
+                "reacquired": int(diag.get("updates", {}).get("reacquire", 0)),
             }
             results.append(row)
             blk = " ".join(f"{b['name']}={b['tip_rmse_mm']:.2f}" for b in r["blocks"])
@@ -132,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"{row['session']:<22} {v:<11} pooled {r['pooled']['tip_rmse_mm']:6.2f} mm "
                 f"(median {r['pooled']['tip_median_mm']:.2f}, p95 {r['pooled']['tip_p95_mm']:.2f}, "
                 f"radial {r['pooled']['radial_rmse_mm']:.2f}, tangential {r['pooled']['tangential_rmse_mm']:.2f}) "
-                f"[{blk}] cpu {cpu:.1f} s resets {diag['resets']}",
+                f"[{blk}] cpu {cpu:.1f} s resets {diag['resets']} reacquired {row['reacquired']}",
                 flush=True,
             )
     if args.json:

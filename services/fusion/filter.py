@@ -59,12 +59,12 @@ class State:
 
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
-        "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis",
+        "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
     )  # fmt: skip
 
     def copy(self) -> State:
         s = State.__new__(State)
-        for k in ("t_ns", "brho", "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run"):
+        for k in ("t_ns", "brho", "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "reacq"):
             setattr(s, k, getattr(self, k))
         for k in ("p", "v", "R", "bg", "ba", "P", "w_imu", "f_imu", "alpha_tool"):
             setattr(s, k, getattr(self, k).copy())
@@ -152,6 +152,7 @@ class TrackingFilter:
         s.vis_reject_run = 0
         s.counts = {}
         s.nis = {}
+        s.reacq = ()  # (t_ns, phi_base (3,), dp_base_m (3,)) of frames gated out on innovation
         return s
 
     def init_from_vision(self, t_ns: int, obs: dict, f_imu: np.ndarray | None) -> State | None:
@@ -295,7 +296,11 @@ class TrackingFilter:
             H[2:, IP] = nA
             y = np.concatenate([-(nA @ u), rho - nA @ (s.p - cam)])
             r = np.array([self.plane_var, self.plane_var, self.offset_var, self.offset_var])
-            applied |= self._update(s, H, y, r, prm.gate_chi2_4, "vision_axis")
+            if self._update(s, H, y, r, prm.gate_chi2_4, "vision_axis"):
+                applied = True
+                s.reacq = ()
+            elif self._reacquire(s, obs):
+                return True
         else:
             _bump(s.counts, "rejected:vision_axis:trocar_gate")
         if obs["junction_visible"] and (passed or prm.gated_out_tip):
@@ -318,6 +323,47 @@ class TrackingFilter:
         if applied:
             s.last_vision_ns = s.t_ns
         return applied
+
+    def _reacquire(self, s: State, obs: dict) -> bool:
+        """A frame that passes the trocar gate but fails the axis' innovation gate: the
+        correction vision asks for (rotation phi [rad] taking the shaft onto the frame's, tip
+        shift dp [m], base frame) is kept; once `reacquire_frames` such frames within the window
+        ask for the same correction, it is applied with the position/velocity/attitude
+        covariance reset to its initial values (biases kept): vision re-acquires the heading
+        after a blackout instead of waiting for the divergence reset. True when applied."""
+        prm = self.prm
+        if prm.reacquire_frames < 1 or not obs["junction_visible"]:
+            return False
+        cand = self.init_from_vision(s.t_ns, obs, None)
+        if cand is None:
+            return False
+        u, u_c = s.R[:, 2], cand.R[:, 2]
+        ax = cross(u, u_c)
+        sn = float(np.linalg.norm(ax))
+        phi = ax * (math.atan2(sn, float(u @ u_c)) / sn) if sn > 1e-12 else np.zeros(3)
+        keep = [e for e in s.reacq if s.t_ns - e[0] <= prm.reacquire_window_ms * 1e6]
+        keep.append((s.t_ns, phi, cand.p - s.p))
+        s.reacq = tuple(keep[-int(prm.reacquire_frames) :])
+        if len(s.reacq) < prm.reacquire_frames:
+            return False
+        phis = np.array([e[1] for e in s.reacq])
+        dps = np.array([e[2] for e in s.reacq])
+        if (np.abs(phis - phis.mean(0)).max() > prm.reacquire_agree_deg * DEG
+                or np.abs(dps - dps.mean(0)).max() > prm.reacquire_agree_mm * 1e-3):  # fmt: skip
+            return False
+        s.R = exp_so3(phi) @ s.R  # the latest frame's correction, roll carried along
+        s.p = s.p + dps[-1]
+        s.v = np.zeros(3)
+        init = self.new_state(s.t_ns, s.R, 0.1, None).P
+        for blk in (IP, IV, ITH):
+            s.P[blk, :] = 0.0
+            s.P[:, blk] = 0.0
+            s.P[blk, blk] = init[blk, blk]
+        s.reacq = ()
+        s.vis_reject_run = 0
+        s.last_vision_ns = s.last_tip_ns = s.t_ns
+        _bump(s.counts, "updates:reacquire")
+        return True
 
     def diverged(self, s: State) -> str | None:
         """Why the state must be reset, or None."""

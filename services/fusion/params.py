@@ -71,6 +71,13 @@ class Params:
     gate_chi2_4: float = 18.47
     gate_chi2_3: float = 16.27
     reset_after_vision_rejections: int = 15  # consecutive rejected vision frames -> divergence
+    # re-acquisition: this many frames in a row that pass the trocar gate but fail the axis'
+    # innovation gate, and agree with each other (the same heading/position correction within
+    # the tolerances below, over at most the window), move the state onto vision directly
+    reacquire_frames: int = 4
+    reacquire_window_ms: float = 1000.0
+    reacquire_agree_deg: float = 0.5
+    reacquire_agree_mm: float = 2.0
     max_position_sigma_mm: float = 200.0
 
     def __post_init__(self) -> None:

@@ -146,3 +146,49 @@ def test_tof_offset_moves_only_after_an_independent_tip():
         f.update_tof(s, rho + 0.004)
     assert stale.brho == pytest.approx(0.0, abs=1e-12)
     assert s.brho > 0.5e-3
+
+
+def _off_heading(f: TrackingFilter, s, angle_deg: float):
+    """The state turned about the vertical through the RCM (a heading error after a blackout),
+    its covariance left as confident as before."""
+    bad = s.copy()
+    Rz = so3_exp(np.array([0.0, 0.0, math.radians(angle_deg)]))
+    bad.R = Rz @ s.R
+    bad.p = f.rcm + Rz @ (s.p - f.rcm)
+    return bad
+
+
+def _frames(f: TrackingFilter, s, obs_list) -> None:
+    for obs in obs_list:
+        f.propagate(s, s.t_ns + 33_000_000)
+        f.update_vision(s, obs)
+
+
+def test_consistent_frames_failing_the_innovation_gate_reacquire_heading():
+    f, s, R, p = _run_static(5.0, np.zeros(3))
+    bad = _off_heading(f, s, 6.0)
+    assert np.linalg.norm(bad.p - p) > 6e-3
+    k = f.prm.reacquire_frames
+    _frames(f, bad, [_obs(f.c, R, p)] * (k - 1))
+    assert bad.counts.get("updates:reacquire", 0) == 0  # not before k frames agree
+    assert bad.counts["rejected:vision_axis:innovation"] >= k - 1
+    # the tip of the first rejected frame still pulls the state, so its correction may differ
+    _frames(f, bad, [_obs(f.c, R, p)] * 2)
+    assert bad.counts["updates:reacquire"] == 1
+    assert np.linalg.norm(bad.p - p) < 1e-3
+    assert math.degrees(math.acos(min(1.0, float(bad.R[:, 2] @ R[:, 2])))) < 0.2
+    assert f.diverged(bad) is None
+    # afterwards the frames pass the gate again
+    n0 = bad.counts.get("updates:vision_axis", 0)
+    _frames(f, bad, [_obs(f.c, R, p)] * 3)
+    assert bad.counts["updates:vision_axis"] == n0 + 3
+
+
+def test_disagreeing_frames_do_not_reacquire():
+    f, s, R, p = _run_static(5.0, np.zeros(3))
+    bad = _off_heading(f, s, 6.0)
+    tilts = [0.0, 1.5] * 4  # each passes the trocar gate, but they ask for different lines
+    _frames(f, bad, [_obs(f.c, R, p, tilt_rad=math.radians(t)) for t in tilts])
+    assert bad.counts.get("updates:reacquire", 0) == 0
+    assert bad.counts.get("rejected:vision_axis:trocar_gate", 0) == 0
+    assert np.linalg.norm(bad.p - p) > 6e-3
