@@ -212,6 +212,8 @@ class TrackingFilter:
         s.gyro_n += 1
         if s.gyro_n % self.prm.rcm_every == 0:
             self.update_rcm(s)
+        if not self.vision:
+            self._clamp_depth(s)
 
     def on_accel(self, s: State, t_ns: int, f_imu: np.ndarray) -> None:
         """Hold the sample for propagation; a gravity update at gravity_rate_hz, applied at the
@@ -273,6 +275,15 @@ class TrackingFilter:
         free = self.vision and (s.t_ns - s.last_tip_ns) <= window
         y = np.array([range_m - rho])
         return self._update(s, H, y, np.array([self.tof_var]), self.prm.gate_chi2_1, "tof", freeze_brho=not free)
+
+    def _clamp_depth(self, s: State) -> None:
+        """The tip back to the physical insertion range along the shaft (depth_min/max_m)."""
+        u = s.R[:, 2]
+        L = float(u @ (s.p - self.rcm))
+        Lc = min(max(L, self.prm.depth_min_m), self.prm.depth_max_m)
+        if Lc != L:
+            s.p = s.p + (Lc - L) * u
+            _bump(s.counts, "clamped:depth")
 
     def update_vision(self, s: State, obs: dict) -> bool:
         """One accepted frame (camera frame: normals n_left/n_right, junction ray): tangent

@@ -70,6 +70,9 @@ class Params:
     gate_chi2_2: float = 13.82
     gate_chi2_4: float = 18.47
     gate_chi2_3: float = 16.27
+    # without vision the tip is held within the physical insertion range along the shaft
+    depth_min_m: float = 0.02
+    depth_max_m: float = 0.40
     reset_after_vision_rejections: int = 15  # consecutive rejected vision frames -> divergence
     # re-acquisition: this many frames in a row that pass the trocar gate but fail the axis'
     # innovation gate, and agree with each other (the same heading/position correction within

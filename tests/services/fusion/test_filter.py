@@ -192,3 +192,21 @@ def test_disagreeing_frames_do_not_reacquire():
     assert bad.counts.get("updates:reacquire", 0) == 0
     assert bad.counts.get("rejected:vision_axis:trocar_gate", 0) == 0
     assert np.linalg.norm(bad.p - p) > 6e-3
+
+
+def test_without_vision_the_tip_stays_at_a_physical_depth():
+    c = _calib()
+    R, _ = _pose()
+    f = TrackingFilter(c, Params(), frozenset({"imu", "tof"}))
+    f_true = c.R_tool_imu.T @ R.T @ (-G)
+    for depth in (0.9, -0.05):
+        s = f.new_state(0, R, depth, f_true)
+        f.on_gyro(s, 5_000_000, np.zeros(3))
+        L = float(R[:, 2] @ (s.p - f.rcm))
+        assert f.prm.depth_min_m - 1e-4 <= L <= f.prm.depth_max_m + 1e-4, L
+        assert s.counts["clamped:depth"] == 1
+    # with vision the clamp is not applied: vision itself bounds the depth
+    fv = TrackingFilter(c, Params())
+    s = fv.new_state(0, R, 0.9, f_true)
+    fv.on_gyro(s, 5_000_000, np.zeros(3))
+    assert "clamped:depth" not in s.counts
