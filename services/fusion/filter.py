@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from services.fusion import kernels
-from services.fusion.init import initial_rotation
+from services.fusion.init import closest_params, initial_rotation, perp_basis
 from services.fusion.params import SENSORS, Params
 from tiplog.calibration import Calibration
 
@@ -172,7 +172,7 @@ class TrackingFilter:
         if nu < 1e-9:
             return None
         u_c /= nu
-        s_axis, t_ray = _closest_params(self.rcm_cam, u_c, d)
+        s_axis, t_ray = closest_params(self.rcm_cam, u_c, d)
         if s_axis < 0:
             u_c, s_axis = -u_c, -s_axis
         depth = s_axis + self.jp
@@ -320,7 +320,7 @@ class TrackingFilter:
             if 1.0 - float(d @ u_c) ** 2 < prm.junction_min_sin2:
                 _bump(s.counts, "rejected:vision_tip:ill_conditioned")
             else:
-                E = _perp_basis(d)
+                E = perp_basis(d)
                 EA = E @ A
                 J = s.p - self.jp * u
                 H = np.zeros((2, N))
@@ -385,23 +385,3 @@ class TrackingFilter:
         if self.vision and s.vis_reject_run >= self.prm.reset_after_vision_rejections:
             return "innovation"
         return None
-
-
-def _perp_basis(d: np.ndarray) -> np.ndarray:
-    """(2, 3) orthonormal rows perpendicular to unit d."""
-    a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = cross(d, a)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, cross(d, e1)])
-
-
-def _closest_params(p0: np.ndarray, u: np.ndarray, d: np.ndarray) -> tuple[float, float]:
-    """(s, t) minimising |p0 + s u - t d| for unit u, d."""
-    du = float(d @ u)
-    dp = float(d @ p0)
-    up = float(u @ p0)
-    den = 1.0 - du * du
-    if den < 1e-9:
-        return 0.0, dp
-    s = (du * dp - up) / den
-    return s, dp + s * du

@@ -1,4 +1,5 @@
-"""Initial orientation of the tool from a shaft direction and the accelerometer's gravity."""
+"""Initial orientation of the tool from a shaft direction and the accelerometer's gravity, and
+the line geometry the filter's vision updates share."""
 
 from __future__ import annotations
 
@@ -44,3 +45,27 @@ def shaft_from_tilt(f_imu: np.ndarray, R_tool_imu: np.ndarray, heading_base: np.
     h = h / (np.linalg.norm(h) or 1.0)
     s = np.sqrt(max(0.0, 1.0 - uz * uz))
     return np.array([s * h[0], s * h[1], uz])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def perp_basis(d: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal rows perpendicular to unit d."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = _cross(d, a)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, _cross(d, e1)])
+
+
+def closest_params(p0: np.ndarray, u: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+    """(s, t) minimising |p0 + s u - t d| for unit u, d."""
+    du = float(d @ u)
+    dp = float(d @ p0)
+    up = float(u @ p0)
+    den = 1.0 - du * du
+    if den < 1e-9:
+        return 0.0, dp
+    s = (du * dp - up) / den
+    return s, dp + s * du
