@@ -16,8 +16,8 @@ Unlike VQF, every step uses its own time step from the sample stamps (arbitrary 
 rates, dropped rows), the gyroscope is integrated with the trapezoid rule, a gap longer than
 `max_gap_s` restarts the inclination from the next accelerometer sample, and a missing (NaN)
 gyroscope or accelerometer value skips that sensor for the row. The time loop is one scalar
-kernel, compiled with numba when it is installed (`pip install tiplog[fast]`) and plain
-Python otherwise; the online `update` and the batch `update_batch` share it.
+kernel, compiled with numba (a dependency; when it is missing the same code runs as plain
+Python, slower, same results); the online `update` and the batch `update_batch` share it.
 
 Quaternions here are Hamilton (w, x, y, z), sensor to earth: v_earth = q * v_sensor * q^-1.
 """
