@@ -79,8 +79,8 @@ class Params:
     # the tolerances below, over at most the window), move the state onto vision directly
     reacquire_frames: int = 4
     reacquire_window_ms: float = 1000.0
-    reacquire_agree_deg: float = 0.5
-    reacquire_agree_mm: float = 2.0
+    reacquire_agree_deg: float = 2.0
+    reacquire_agree_mm: float = 6.0
     max_position_sigma_mm: float = 200.0
 
     def __post_init__(self) -> None:

@@ -42,7 +42,7 @@ class _Track:
     """What a rewind restores: the filter state (None before initialisation) and the latest
     accelerometer sample (for initialising roll)."""
 
-    __slots__ = ("state", "f_last", "resets", "reset_reasons", "neutral_u")
+    __slots__ = ("state", "f_last", "resets", "reset_reasons", "neutral_u", "reacquired")
 
     def __init__(self) -> None:
         self.state: State | None = None
@@ -50,6 +50,7 @@ class _Track:
         self.resets = 0
         self.reset_reasons: dict[str, int] = {}
         self.neutral_u: np.ndarray | None = None
+        self.reacquired = 0  # vision re-acquisitions of states since reset (theirs are in their counts)
 
     def copy(self) -> _Track:
         t = _Track.__new__(_Track)
@@ -58,6 +59,7 @@ class _Track:
         t.resets = self.resets
         t.reset_reasons = dict(self.reset_reasons)
         t.neutral_u = self.neutral_u
+        t.reacquired = self.reacquired
         return t
 
 
@@ -201,6 +203,9 @@ class FusionRunner:
         rejected = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("rejected:")}
         rejected.update(self.dropped)
         nis = {k: v / max(updates.get(k, 0), 1) for k, v in nis_sum.items()}
+        n_reacq = updates.get("reacquire", 0) + self._track.reacquired
+        if n_reacq:
+            updates["reacquire"] = n_reacq  # over the whole run, across resets
         return {
             "updates": updates,
             "rejected": rejected,
@@ -287,6 +292,7 @@ class FusionRunner:
                 f.on_gyro(s, t, payload)
                 why = f.diverged(s)
                 if why is not None:
+                    tr.reacquired += int(s.counts.get("updates:reacquire", 0))
                     tr.state = None
                     tr.resets += 1
                     tr.reset_reasons[why] = tr.reset_reasons.get(why, 0) + 1
