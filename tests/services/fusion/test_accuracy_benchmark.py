@@ -1,0 +1,25 @@
+"""The accuracy benchmark's degraded-vision spans: sixteen blackouts per session, inside the
+scored blocks, never overlapping (placed per block they merged into block-long blackouts)."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchmarks.fusion_accuracy import _blackout_spans
+
+S = 1_000_000_000
+
+
+@pytest.mark.parametrize("length_s", [1, 3, 10])
+def test_sixteen_separate_blackouts_inside_the_blocks(length_s):
+    blocks = [("sweep_pitch", 10 * S, 90 * S), ("sweep_roll", 100 * S, 190 * S), ("sweep_depth", 200 * S, 270 * S)]
+    spans = sorted(_blackout_spans(blocks, length_s * S))
+    assert len(spans) == 16
+    assert all(b - a == length_s * S for a, b in spans)
+    assert all(spans[i][1] <= spans[i + 1][0] for i in range(len(spans) - 1))
+    assert all(any(a <= s and e <= b for _, a, b in blocks) for s, e in spans)
+
+
+def test_a_block_too_short_for_its_share_gets_fewer():
+    spans = _blackout_spans([("teleop1", 0, 25 * S)], 10 * S)
+    assert len(spans) == 2 and spans[0][1] <= spans[1][0]
