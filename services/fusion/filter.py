@@ -10,6 +10,8 @@ w x (w x r_I)); updates: gravity (down-weighted as |a| departs from g), the RCM 
 pseudo-measurement, ToF through the ray-plane model plus b_rho, vision tangent planes (shaft
 direction and the axis' offset) and the junction ray (the tip, unconstrained along the line of
 sight). Every update passes an innovation (chi-square) gate; counts go to `State.counts`.
+Frames that pass the trocar gate but consistently fail the axis' innovation gate re-acquire
+the pose from vision (`_reacquire`); without vision the tip is held at a physical depth.
 Measurement times are already latency-corrected by the caller (the runner).
 """
 
