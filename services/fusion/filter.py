@@ -100,7 +100,7 @@ class TrackingFilter:
         self.c_cam = calib.p_base_camera_m
         self.rcm = calib.rcm_base_m
         self.rcm_cam = self.A @ (self.rcm - self.c_cam)
-        self.jp = calib.junction_proximal_m + calib.vision_tip_offset_m
+        self.jp = calib.junction_proximal_m - calib.vision_tip_offset_m  # offset: vision tip minus true tip, along u
         p = params
         self.q_gyro = (p.gyro_noise_dps_rthz * DEG) ** 2
         self.q_acc = p.accel_noise_mps2_rthz**2

@@ -309,7 +309,9 @@ class FusionRunner:
             if s is not None:
                 f.propagate(s, t)
                 f.update_vision(s, payload)
-            else:
+            elif not f.imu or tr.f_last is not None:
+                # Not before the first accelerometer sample: without it the roll is unknown and
+                # gravity would be removed along the wrong axis (live, vision can come first).
                 tr.state = f.init_from_vision(t, payload, tr.f_last if f.imu else None)
                 if tr.state is not None and tr.neutral_u is None:
                     tr.neutral_u = tr.state.R[:, 2].copy()
