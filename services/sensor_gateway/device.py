@@ -1,8 +1,11 @@
 """Serial reader thread: open the port, read, parse, stamp on arrival, publish; reconnect.
 
 One thread owns the port (never a Zenoh callback thread). Every read is stamped on the host
-clock the moment it returns, before parsing; each sample in it carries that arrival stamp
-and its device clock. Faults are counted (parser counters plus `disconnects`, `reconnects`,
+clock the moment it returns, before parsing. The newest sample of each stream in a read
+carries that arrival stamp; older samples of the same stream in the same read (a loaded host
+reads bursts) are back-dated by their spacing on the device clock, never to or before the
+stream's previous stamp, so every sample keeps a distinct, ordered host time. Each also
+carries its device clock. Faults are counted (parser counters plus `disconnects`, `reconnects`,
 `stalls`, `open_failures`) and never end the thread: a lost port is retried with capped
 exponential back-off, a silent port goes STALLED (and is reopened after `stall_reopen_s`).
 """
@@ -42,6 +45,10 @@ class DeviceLinkConfig:
     read_timeout_s: float = 0.05
 
 
+# A burst older than this on the device clock is not back-dated (a device restart, a clock jump).
+MAX_BACKDATE_NS = NS_PER_S
+
+
 class DeviceReader:
     """Runs the serial loop on its own thread; publishes device/* through `bus`."""
 
@@ -56,6 +63,7 @@ class DeviceReader:
             PacketType.MAG: bus.publisher("device/mag"),
             PacketType.TOF: bus.publisher("device/tof"),
         }
+        self._last_stamp_ns: dict[PacketType, int] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="serial-reader", daemon=True)
         self.connect_times_ns: list[int] = []
@@ -151,17 +159,28 @@ class DeviceReader:
             self._sync_faults()
             return 0
         counts: Counter[str] = Counter()
+        newest_us = {p.type: p.device_us for p in pkts if isinstance(p, (Vec3Packet, TofPacket))}
         for pkt in pkts:
             if isinstance(pkt, Vec3Packet):
-                self._publish_vec3(pkt, stamp_ns)
+                self._publish_vec3(pkt, self._sample_stamp(pkt, stamp_ns, newest_us[pkt.type]))
             elif isinstance(pkt, TofPacket):
-                self._publish_tof(pkt, stamp_ns)
+                self._publish_tof(pkt, self._sample_stamp(pkt, stamp_ns, newest_us[pkt.type]))
             elif isinstance(pkt, HelloPacket):
                 self.status.on_hello(pkt, PROTOCOL_VERSION)
             counts[STREAM_NAMES[pkt.type]] += 1
         self.status.on_samples(counts, stamp_ns)
         self._sync_faults()
         return len(pkts)
+
+    def _sample_stamp(self, pkt: Vec3Packet | TofPacket, read_ns: int, newest_us: int) -> int:
+        """Host time of one sample of a read stamped `read_ns` [ns] (see the module docstring)."""
+        back_ns = (newest_us - pkt.device_us) * 1000
+        t = read_ns - back_ns if 0 <= back_ns < MAX_BACKDATE_NS else read_ns
+        prev = self._last_stamp_ns.get(pkt.type, 0)
+        if t <= prev:
+            t = min(prev + 1, read_ns)
+        self._last_stamp_ns[pkt.type] = t
+        return t
 
     def _publish_vec3(self, pkt: Vec3Packet, stamp_ns: int) -> None:
         t = pkt.type

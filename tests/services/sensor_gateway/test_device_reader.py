@@ -67,7 +67,7 @@ def test_reader_over_a_socket_url(bus_pair_configs):
     assert abs(g.rate_radps.x - 0.3) < 1e-6 and g.rate_radps.z == -1.0
     assert [m.header.seq for m in gyros] == list(range(50)) + list(range(60, 70))
     stamps = [m.header.stamp_ns for m in gyros]
-    assert stamps == sorted(stamps) and stamps[0] > 0
+    assert stamps[0] > 0 and all(b > a for a, b in zip(stamps, stamps[1:], strict=False))  # distinct, ordered
     assert tofs[0].status == device_pb2.TOF_STATUS_UNSPECIFIED and tofs[0].range_raw_mm == 120.0
     assert reader.faults["tof_status_unknown"] == 1 and reader.faults["reconnects"] == 1
     assert reader.parser.faults["seq_gap_samples"] == 10  # 50..59 never came
@@ -78,3 +78,34 @@ def test_reader_over_a_socket_url(bus_pair_configs):
     assert device_pb2.DEVICE_STATE_DISCONNECTED in states[2:]
     msg = status.publish_periodic()
     assert msg.faults["disconnects"] >= 1 and msg.frames_ok == 62 and msg.firmware == "fw 9.9"
+
+
+def test_a_burst_read_at_once_keeps_the_device_spacing(bus_pair_configs):
+    """A loaded host reads several samples in one read: the newest of each stream gets the
+    read's arrival stamp, older ones are back-dated by the device clock (5 ms gyro spacing
+    here), never to or before the stream's previous stamp."""
+    listen_cfg, connect_cfg = bus_pair_configs
+    gyros, tofs = [], []
+    with Bus(listen_cfg) as sub_bus, Bus(connect_cfg) as pub_bus:
+        sub_bus.subscribe("device/gyro", lambda m, i: gyros.append(m))
+        sub_bus.subscribe("device/tof", lambda m, i: tofs.append(m))
+        reader = DeviceReader(DeviceLinkConfig(port="loop://"), pub_bus, GatewayStatus("loop://", lambda m: None))
+        assert wait_for(lambda: reader._pubs[PacketType.GYRO]._pub.matching_status.matching)
+
+        def burst(first: int, n: int) -> bytes:
+            frames = [
+                encode_packet_frame(Vec3Packet(PacketType.GYRO, k, 5000 * k, 0.0, 0.0, 0.0))
+                for k in range(first, first + n)
+            ]
+            frames.insert(2, encode_packet_frame(TofPacket(first, 5000 * first + 100, 120.0, 0, 0.0, False)))
+            return b"".join(frames)
+
+        T = 10_000_000_000
+        assert reader._handle(burst(0, 4), T) == 5
+        assert reader._handle(burst(4, 3), T + 1_000_000) == 4  # next read only 1 ms later
+        assert wait_for(lambda: len(gyros) == 7 and len(tofs) == 2)
+    stamps = [m.header.stamp_ns for m in gyros]
+    assert stamps[:4] == [T - 15_000_000, T - 10_000_000, T - 5_000_000, T]
+    # the second read cannot go back before the first one's newest: 1 ns steps up to its arrival
+    assert stamps[4:] == [T + 1, T + 2, T + 1_000_000]
+    assert [m.header.stamp_ns for m in tofs] == [T, T + 1_000_000]  # alone in its stream in each read
