@@ -32,27 +32,6 @@ class StateSample:
     last_vision_stamp_ns: int
 
 
-def quat_wxyz(R: np.ndarray) -> np.ndarray:
-    """Rotation matrix -> unit quaternion (w, x, y, z), w >= 0 (Shepperd, scalar)."""
-    m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
-    tr = m00 + m11 + m22
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        q = (0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s)
-    elif m00 > m11 and m00 > m22:
-        s = math.sqrt(1.0 + m00 - m11 - m22) * 2
-        q = ((R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s)
-    elif m11 > m22:
-        s = math.sqrt(1.0 + m11 - m00 - m22) * 2
-        q = ((R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s)
-    else:
-        s = math.sqrt(1.0 + m22 - m00 - m11) * 2
-        q = ((R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s)
-    out = np.array(q)
-    out /= np.linalg.norm(out)
-    return -out if out[0] < 0 else out
-
-
 def make_sample(s: State, rcm_base_m: np.ndarray, neutral_u: np.ndarray, lock_ns: int) -> StateSample:
     f = kernels.sample_fields(s.R, s.p, rcm_base_m, neutral_u)
     d = np.diag(s.P)
