@@ -1,6 +1,17 @@
-"""`tiplog evaluate SESSION.mcap --estimate OUT.mcap --json RESULT.json [--plots DIR]`: the tip
-error of an estimate against the bench's ground truth, for the continuous blocks (programmed
-sweeps, teleoperated, demo): per block and pooled, first 20 % of each block excluded."""
+"""`tiplog evaluate`: a bench session scored against its ground truth, by the protocol it records
+(its `session.protocol` metadata), or the whole study with `--paper`.
+
+  translation / rotation   tiplog evaluate SESSION.mcap --json R.json [--calibration FILE] [--plots DIR]
+                           (runs the static-trial filter itself: displacement and relative
+                           rotation between the stationary windows, no alignment)
+  static                   tiplog evaluate SESSION.mcap --json R.json [--calibration FILE]
+                           (raw-stream noise per hold, the tracking filter's jitter and drift)
+  sweeps, teleop, demo     tiplog evaluate SESSION.mcap --estimate OUT.mcap --json R.json [--plots DIR]
+                           (tip error of `tiplog fusion run`'s output, first 20 % of each block
+                           excluded), and/or --ablations [--jobs J]: every sensor subset and
+                           degraded vision re-run on the recording
+  the whole study          tiplog evaluate --paper [--out DIR] [--seed N] [--quick] [--jobs J]
+"""
 
 from __future__ import annotations
 
@@ -8,45 +19,146 @@ import argparse
 import json
 import logging
 import os
+import sys
 from pathlib import Path
+from typing import Any
 
-from services.fusion.evaluation import EvaluationError, evaluate, plot, public
-from tiplog.userio import UserError, atomic_output, input_mcap, output_file
+from services.fusion.evaluation import CONTINUOUS_PROTOCOLS, EvaluationError, evaluate, plot, public
+from tiplog.calibration import Calibration, CalibrationError
+from tiplog.mcap_io import read_metadata
+from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 log = logging.getLogger("tiplog.evaluate")
+STATIC_PROTOCOLS = ("translation", "rotation")
 
 
 def register(p: argparse.ArgumentParser) -> None:
-    p.add_argument("session", help="bench session (MCAP) with ground truth (bench/robot, trials)")
-    p.add_argument("--estimate", required=True, help="MCAP written by `tiplog fusion run` (fusion/state)")
-    p.add_argument("--json", required=True, dest="json_out", help="result file to write (JSON)")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.description = __doc__
+    p.add_argument("session", nargs="?", help="bench session (MCAP) with ground truth (bench/robot, trials)")
+    p.add_argument("--estimate", help="MCAP written by `tiplog fusion run` (continuous sessions)")
+    p.add_argument("--json", dest="json_out", help="result file to write (JSON)")
     p.add_argument("--topic", default="fusion/state", help="estimate topic (fusion/state_smoothed for --smooth runs)")
-    p.add_argument("--plots", help="folder for PNG plots (tip path and error over time per block)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing result file")
+    p.add_argument("--calibration", help="calibration YAML for the filters run here (default: the session's own)")
+    p.add_argument("--plots", help="folder for PNG plots")
+    p.add_argument("--ablations", action="store_true", help="continuous session: every sensor subset and degradation")
+    p.add_argument("--jobs", type=int, help="worker processes (default: the number of cores)")
+    p.add_argument("--paper", action="store_true", help="the whole study on the bench, one report")
+    p.add_argument("--out", help="--paper: report folder (default paper_report)")
+    p.add_argument("--seed", type=int, default=1, help="--paper: bench seed (default 1)")
+    p.add_argument(
+        "--quick", action="store_true", help="--paper: short sessions (a smoke test, not the paper's figures)"
+    )
+    p.add_argument("--force", action="store_true", help="overwrite an existing result file or report folder")
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    session = input_mcap(args.session)
-    estimate = input_mcap(args.estimate)
-    output_file(args.json_out, args.force)
-    plots = None
-    if args.plots:
-        plots = Path(args.plots)
-        if plots.exists() and not plots.is_dir():
-            raise UserError(f"{plots}: exists and is not a folder")
-        if not plots.parent.is_dir() or not os.access(plots.parent, os.W_OK):
-            raise UserError(f"{plots}: cannot create the folder here")
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError:
-            raise UserError("--plots needs matplotlib (pip install 'tiplog[plots]')") from None
+def protocol_of(path: Path) -> str:
+    """The session's protocol from its metadata (`session.protocol`), or UserError."""
     try:
-        result = evaluate(session, estimate, args.topic)
-    except EvaluationError as e:
+        md = read_metadata(path)
+    except Exception as e:  # noqa: BLE001 - any reader failure is a bad file for the user
+        raise UserError(f"{path}: cannot read the MCAP metadata ({type(e).__name__})") from None
+    proto = md.get("session", {}).get("protocol", "")
+    if not proto or "trials" not in md:
+        raise UserError(f"{path}: not a bench session with ground truth (no session.protocol / trials metadata)")
+    return proto
+
+
+def _plots_dir(arg: str | None) -> Path | None:
+    if not arg:
+        return None
+    plots = Path(arg)
+    if plots.exists() and not plots.is_dir():
+        raise UserError(f"{plots}: exists and is not a folder")
+    if not plots.parent.is_dir() or not os.access(plots.parent, os.W_OK):
+        raise UserError(f"{plots}: cannot create the folder here")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise UserError("--plots needs matplotlib (pip install 'tiplog[plots]')") from None
+    return plots
+
+
+def _calibration(arg: str | None) -> Calibration | None:
+    if not arg:
+        return None
+    try:
+        return Calibration.load_yaml(input_file(arg, "calibration file"))
+    except CalibrationError as e:
         raise UserError(str(e)) from None
-    with atomic_output(args.json_out, args.force) as tmp:
-        tmp.write_text(json.dumps(public(result), indent=2) + "\n")
+
+
+def _jobs(n: int | None) -> int | None:
+    if n is not None and n < 1:
+        raise UserError(f"--jobs: must be 1 or more, got {n}")
+    return n
+
+
+def _write(path: str, res: dict[str, Any], force: bool) -> None:
+    with atomic_output(path, force) as tmp:
+        tmp.write_text(json.dumps(public(res), indent=2) + "\n")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.paper:
+        if args.session or args.estimate or args.json_out or args.ablations:
+            raise UserError("--paper: takes no SESSION, --estimate, --json or --ablations (it makes its own sessions)")
+        from services.fusion import paper
+
+        return paper.run(args)
+    if args.out:
+        raise UserError("--out: only with --paper (use --json for a session's result)")
+    if not args.session:
+        raise UserError("give a bench session (SESSION.mcap), or --paper for the whole study")
+    if not args.json_out:
+        raise UserError("--json: required (the result file to write)")
+    session = input_mcap(args.session)
+    output_file(args.json_out, args.force)
+    plots = _plots_dir(args.plots)
+    cal = _calibration(args.calibration)
+    jobs = _jobs(args.jobs)
+    proto = protocol_of(session)
+    if proto in STATIC_PROTOCOLS or proto == "static":
+        if args.estimate or args.ablations:
+            raise UserError(f"--estimate/--ablations: not for a {proto} session (its filter is run here)")
+        return _run_static(session, proto, cal, plots, args)
+    if proto not in CONTINUOUS_PROTOCOLS:
+        raise UserError(
+            f"{session}: a {proto} session has no accuracy evaluation (calibrate with it: `tiplog calibrate block|latency`)"
+        )
+    if not args.estimate and not args.ablations:
+        raise UserError(
+            f"--estimate: required for a {proto} session; run `tiplog fusion run {session} --out EST.mcap` first "
+            "(or give --ablations to run the filter's variants here)"
+        )
+    res: dict[str, Any] = {"session": str(session), "protocol": proto}
+    if args.estimate:
+        estimate = input_mcap(args.estimate)
+        try:
+            res |= evaluate(session, estimate, args.topic)
+        except EvaluationError as e:
+            raise UserError(str(e)) from None
+        _print_continuous(res)
+    if args.ablations:
+        from services.fusion.ablation import run_ablations
+
+        cal_file = Path(args.calibration) if args.calibration else None
+        res |= run_ablations(session, cal_file, jobs, progress=lambda s: print(s, flush=True))
+    _write(args.json_out, res, args.force)
+    if plots is not None:
+        plots.mkdir(exist_ok=True)
+        files = plot(res, plots) if "_series" in res else []
+        if args.ablations:
+            from services.fusion.evaluate_plots import ablation_bars
+
+            files.append(ablation_bars({session.stem: res}, plots))
+        for f in files:
+            log.info("wrote %s", f)
+    return 0
+
+
+def _print_continuous(result: dict[str, Any]) -> None:
     p = result["pooled"]
     print(
         f"pooled: tip RMSE {p['tip_rmse_mm']:.2f} mm, median {p['tip_median_mm']:.2f}, p95 {p['tip_p95_mm']:.2f}, "
@@ -56,8 +168,28 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"  {b['name']:<14} RMSE {b['tip_rmse_mm']:.2f} mm  median {b['tip_median_mm']:.2f}  p95 {b['tip_p95_mm']:.2f}"
         )
+
+
+def _run_static(session: Path, proto: str, cal: Calibration | None, plots: Path | None, args) -> int:
+    if proto == "static":
+        from services.fusion.evaluate_holds import evaluate_holds, markdown
+
+        try:
+            res = evaluate_holds(session, cal)
+        except EvaluationError as e:
+            raise UserError(str(e)) from None
+        _write(args.json_out, res, args.force)
+        sys.stdout.write(markdown(res) + "\n")
+        return 0
+    from services.fusion.evaluate_static import evaluate_static, markdown
+
+    res = evaluate_static(session, cal)
+    _write(args.json_out, res, args.force)
+    sys.stdout.write(markdown(res) + "\n")
     if plots is not None:
+        from services.fusion.evaluate_plots import protocol_boxplots
+
         plots.mkdir(exist_ok=True)
-        for f in plot(result, plots):
+        for f in protocol_boxplots(res, plots):
             log.info("wrote %s", f)
     return 0

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from services.fusion.evaluation import public
 from services.fusion.static_trials import TrialEstimate, estimate_trials
 from tiplog import mcap_io
 from tiplog.calibration import Calibration, CalibrationError
@@ -104,9 +105,11 @@ def evaluate_static(path: str | Path, calibration: Calibration | None = None) ->
     d_true = np.array([(b[0] - a[0]) for a, b in truth]) * 1e3
     tip_err = np.linalg.norm(d_est - d_true, axis=1)
     out: dict[str, Any] = {"session": str(path), "trials": len(est), "filter_updates": counts}
+    axes = np.array([e.windows.axis for e in est])
+    # per-trial errors for plots (private: not written to JSON)
+    out["_errors"] = {"tip_mm": tip_err, "axis": axes, "magnitude": np.array([e.windows.magnitude for e in est])}
     if "translation" in kinds:
         steps = np.abs(np.array([e.windows.magnitude for e in est]))  # +- along an axis pooled
-        axes = np.array([e.windows.axis for e in est])
         per_step = {
             f"{s:g}": {**summary(tip_err[steps == s]), "held_out": bool(s in HELD_OUT_STEPS_MM)}
             for s in np.unique(steps)
@@ -125,7 +128,7 @@ def evaluate_static(path: str | Path, calibration: Calibration | None = None) ->
         rel = np.degrees(rotation_angle(np.einsum("nij,nkj->nik", R_est, R_true)))
         reps = _reps(mcap_io.read_metadata(path))
         held = np.array([reps.get(e.windows.index, 0) in HELD_OUT_REPS for e in est])
-        axes = np.array([e.windows.axis for e in est])
+        out["_errors"] |= {"relrot_deg": rel, "angle_deg": ang}
         out["rotation"] = {
             "angle_rmse_deg": float(np.sqrt(np.mean(ang**2))),
             "relrot_rmse_deg": float(np.sqrt(np.mean(rel**2))),
@@ -185,7 +188,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise UserError(str(e)) from None
         res = evaluate_static(src, cal)
         with atomic_output(args.json, args.force) as tmp:
-            tmp.write_text(json.dumps(res, indent=1) + "\n")
+            tmp.write_text(json.dumps(public(res), indent=1) + "\n")
     except UserError as e:
         sys.stderr.write(f"evaluate_static: {e}\n")
         return 2

@@ -22,6 +22,7 @@ import numpy as np
 from tiplog.mcap_io import read_messages, read_metadata
 
 CONTINUOUS_KINDS = ("sweep", "teleop", "demo")
+CONTINUOUS_PROTOCOLS = ("sweeps", "teleop", "demo")
 EXCLUDE_FRACTION = 0.2
 
 
@@ -186,5 +187,18 @@ def plot(result: dict[str, Any], folder: Path) -> list[Path]:
 
 
 def public(result: dict[str, Any]) -> dict[str, Any]:
-    """The result without private series (what goes into the JSON file)."""
-    return {k: v for k, v in result.items() if not k.startswith("_")}
+    """The result without private keys (`_series`, `_errors`) at any level, NaN as null and
+    numpy scalars as Python numbers (what goes into the JSON file)."""
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items() if not str(k).startswith("_")}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, float) and not np.isfinite(v):
+            return None
+        return v
+
+    return clean(result)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.fusion_accuracy import _blackout_spans
+from services.fusion.ablation import blackout_spans as _blackout_spans
 
 S = 1_000_000_000
 

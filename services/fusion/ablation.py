@@ -1,0 +1,212 @@
+"""Ablations on one recording, as the paper ran them: the tracking filter re-run with sensor
+subsets and with degraded vision, every variant scored against the bench's ground truth.
+
+Degradations change only the vision observations the filter is fed (the truth is never fed):
+`third` keeps one accepted frame in three, `noise5` adds white tangent-plane and junction noise
+so that the per-frame vision noise is five times the recording's (seeded), `blackout1/3/10`
+blanks vision for 1, 3 or 10 s at sixteen points of the session shared over its blocks, and
+`junction_hidden` clears `junction_visible` on every observation but the first accepted one
+that shows it (no independent tip from vision, so the ToF offset stays frozen; the tracking
+filter starts only from a frame with a visible junction, so that one frame is kept). Scoring uses `services.fusion.evaluation` (first 20 %
+of each block excluded).
+
+`run_ablations` runs the variants in a process pool; each worker reads the MCAP itself, so
+nothing large is pickled between processes.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import os
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.fusion.evaluation import Estimate, block_windows, load_truth, score_continuous
+from services.fusion.params import Params, parse_sensors
+from services.fusion.run_cli import iter_inputs
+from services.fusion.runner import FusionRunner
+from tiplog import vision_geometry as vg
+from tiplog.calibration import Calibration
+from tiplog.mcap_io import read_metadata
+
+log = logging.getLogger("tiplog.evaluate")
+
+# variant name -> the filter's sensors (the RCM is always used, as in the paper)
+SUBSETS = {"full": "imu,tof,vision", "vision_only": "vision", "imu_tof": "imu,tof", "imu_vision": "imu,vision"}
+DEGRADED = ("third", "noise5", "blackout1", "blackout3", "blackout10", "junction_hidden")
+BLACKOUT_COUNT = 16
+# the recording's per-frame (white) vision noise, from the bench's defaults: plane 0.06 deg,
+# junction depth 0.30 mm; five times in total needs sqrt(25 - 1) times that added
+PLANE_WHITE_DEG = 0.06
+JUNCTION_WHITE_M = 0.30e-3
+JUNCTION_RANGE_M = 0.09  # typical camera-to-junction range: the junction noise as a ray angle
+
+
+def blackout_spans(
+    blocks: list[tuple[str, int, int]], length_ns: int, count: int = BLACKOUT_COUNT
+) -> list[tuple[int, int]]:
+    """`count` blackouts of `length_ns` over the session's blocks [(name, start_ns, end_ns)],
+    shared out in proportion to each block's length and centred in equal slices of it, never
+    overlapping (the paper blanks vision at sixteen points of its recording; placed per block
+    they would overlap into one block-long blackout)."""
+    total = sum(b - a for _, a, b in blocks)
+    spans = []
+    for _, a, b in blocks:
+        n = min(int(round(count * (b - a) / total)), (b - a) // max(length_ns, 1)) if total > 0 else 0
+        for j in range(int(n)):
+            mid = a + (j + 0.5) * (b - a) / n
+            spans.append((int(mid - length_ns / 2), int(mid + length_ns / 2)))
+    return spans
+
+
+def _add_noise(msg: Any, rng: np.random.Generator) -> Any:
+    msg = copy.deepcopy(msg)
+    k = np.sqrt(24.0)
+    for f in ("n_left", "n_right"):
+        v = getattr(msg, f)
+        n = np.array([v.x, v.y, v.z])
+        u = np.cross(n, rng.normal(size=3))
+        a, b = rng.normal(size=2) * np.radians(PLANE_WHITE_DEG) * k
+        n2 = vg.tilt_normal(n, a, b, u / np.linalg.norm(u))
+        v.x, v.y, v.z = (float(c) for c in n2)
+    r = msg.junction_ray
+    d = np.array([r.x, r.y, r.z]) + rng.normal(size=3) * JUNCTION_WHITE_M * k / JUNCTION_RANGE_M
+    d /= np.linalg.norm(d)
+    r.x, r.y, r.z = (float(c) for c in d)
+    return msg
+
+
+def degrade(name: str, msgs: Iterable[tuple], blocks: list[tuple[str, int, int]], seed: int = 0) -> list[tuple]:
+    """The filter's inputs [(topic, message, arrival_ns)] with vision degraded as `name` (one of
+    DEGRADED); other topics pass unchanged. ValueError for an unknown name."""
+    if name not in DEGRADED:
+        raise ValueError(f"degradation: unknown name {name!r}; choose from {', '.join(DEGRADED)}")
+    rng = np.random.default_rng(seed)
+    spans = blackout_spans(blocks, int(float(name[len("blackout") :]) * 1e9)) if name.startswith("blackout") else []
+    out = []
+    accepted = 0
+    kept_init = False
+    for topic, msg, arr in msgs:
+        if topic == "vision/observation":
+            if name == "junction_hidden":
+                if kept_init or not (msg.accepted and msg.junction_visible):
+                    msg = copy.deepcopy(msg)
+                    msg.junction_visible = False
+                else:
+                    kept_init = True  # the filter starts only from a frame that shows the junction
+            elif msg.accepted:
+                t = msg.header.stamp_ns
+                if name == "third":
+                    accepted += 1
+                    if accepted % 3:
+                        continue
+                elif name == "noise5":
+                    msg = _add_noise(msg, rng)
+                elif spans and any(s <= t < e for s, e in spans):
+                    continue
+        out.append((topic, msg, arr))
+    return out
+
+
+def run_variant(
+    msgs: Iterable[tuple], calib: Calibration, params: Params, sensors: str
+) -> tuple[Estimate, dict, float]:
+    """The tracking filter over `msgs` in arrival order: (estimate, diagnostics, CPU seconds)."""
+    runner = FusionRunner(calib, params, parse_sensors(sensors))
+    t0 = time.process_time()
+    states = []
+    for topic, msg, arr in msgs:
+        runner.feed(topic, msg, arr)
+        if topic == "device/gyro":
+            states += runner.advance(arr)
+    states += runner.finish()
+    cpu = time.process_time() - t0
+    tip = np.array([s.p_tip_base_m for s in states], float).reshape(-1, 3)
+    est = Estimate(np.array([s.stamp_ns for s in states], np.int64), tip)
+    return est, runner.diagnostics(), cpu
+
+
+def variants() -> list[str]:
+    """Every ablation variant: the sensor subsets, then the degradations."""
+    return [*SUBSETS, *DEGRADED]
+
+
+def evaluate_variant(
+    session: str | Path, variant: str, calibration: Path | None = None, seed: int = 0
+) -> dict[str, Any]:
+    """One variant on one session (reads the MCAP itself; safe to run in a worker process).
+    `calibration`: a calibration YAML, else the session's `calibration_as_calibrated`."""
+    session = Path(session)
+    truth = load_truth(session)
+    calib = (
+        Calibration.load_yaml(calibration)
+        if calibration
+        else Calibration.from_mcap_metadata(read_metadata(session), where=str(session))
+    )
+    msgs = list(iter_inputs(session, {}))
+    if variant in SUBSETS:
+        use, sensors = msgs, SUBSETS[variant]
+    else:
+        use, sensors = degrade(variant, msgs, block_windows(truth.trials), seed), SUBSETS["full"]
+    est, diag, cpu = run_variant(use, calib, Params(), sensors)
+    r = score_continuous(truth, est)
+    return {
+        "session": session.name,
+        "variant": variant,
+        "kind": "subset" if variant in SUBSETS else "degraded",
+        "tip_rmse_mm": r["pooled"]["tip_rmse_mm"],
+        "tip_p95_mm": r["pooled"]["tip_p95_mm"],
+        "pooled": r["pooled"],
+        "blocks": r["blocks"],
+        "block_mean_mm": float(np.mean([b["tip_rmse_mm"] for b in r["blocks"]])),
+        "states": int(len(est.t_ns)),
+        "cpu_s": round(cpu, 2),
+        "resets": int(diag.get("resets", 0)),
+        "reacquired": int(diag.get("updates", {}).get("reacquire", 0)),
+    }
+
+
+def _worker(job: tuple[str, str, str | None]) -> dict[str, Any]:
+    session, variant, cal = job
+    return evaluate_variant(session, variant, Path(cal) if cal else None)
+
+
+def run_jobs(
+    jobs: list[tuple[str, str, str | None]], workers: int | None = None, progress: Callable[[str], None] | None = None
+) -> list[dict[str, Any]]:
+    """(session, variant, calibration or None) jobs in a process pool of `workers` (default
+    os.cpu_count()); results in the order of `jobs`. `progress` gets one line per finished job."""
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+    out: list[dict[str, Any] | None] = [None] * len(jobs)
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(_worker, j): i for i, j in enumerate(jobs)}
+        for done, f in enumerate(as_completed(futures), 1):
+            r = f.result()
+            out[futures[f]] = r
+            if progress:
+                progress(f"[{done}/{len(jobs)}] {r['session']} {r['variant']}: tip RMSE {r['tip_rmse_mm']:.2f} mm")
+    return [r for r in out if r is not None]
+
+
+def ablation_table(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """JSON shape `subsets.<name>.tip_rmse_mm`, `degraded.<name>.tip_rmse_mm` of one session's
+    variant results."""
+    out: dict[str, Any] = {"subsets": {}, "degraded": {}}
+    for r in results:
+        key = "subsets" if r["kind"] == "subset" else "degraded"
+        out[key][r["variant"]] = {k: r[k] for k in ("tip_rmse_mm", "tip_p95_mm", "block_mean_mm", "resets", "blocks")}
+    return out
+
+
+def run_ablations(
+    session: str | Path, calibration: Path | None = None, workers: int | None = None, progress=None
+) -> dict[str, Any]:
+    """Every subset and degradation on one continuous session (see `ablation_table`)."""
+    cal = str(calibration) if calibration else None
+    return ablation_table(run_jobs([(str(session), v, cal) for v in variants()], workers, progress))
