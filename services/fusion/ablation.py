@@ -138,10 +138,11 @@ def variants() -> list[str]:
 
 
 def evaluate_variant(
-    session: str | Path, variant: str, calibration: Path | None = None, seed: int = 0
+    session: str | Path, variant: str, calibration: Path | None = None, seed: int = 0, series: bool = False
 ) -> dict[str, Any]:
     """One variant on one session (reads the MCAP itself; safe to run in a worker process).
-    `calibration`: a calibration YAML, else the session's `calibration_as_calibrated`."""
+    `calibration`: a calibration YAML, else the session's `calibration_as_calibrated`;
+    `series`: keep the scored time series (private `_series`, for plots)."""
     session = Path(session)
     truth = load_truth(session)
     calib = (
@@ -156,7 +157,7 @@ def evaluate_variant(
         use, sensors = degrade(variant, msgs, block_windows(truth.trials), seed), SUBSETS["full"]
     est, diag, cpu = run_variant(use, calib, Params(), sensors)
     r = score_continuous(truth, est)
-    return {
+    out = {
         "session": session.name,
         "variant": variant,
         "kind": "subset" if variant in SUBSETS else "degraded",
@@ -170,6 +171,9 @@ def evaluate_variant(
         "resets": int(diag.get("resets", 0)),
         "reacquired": int(diag.get("updates", {}).get("reacquire", 0)),
     }
+    if series:
+        out["_series"] = r["_series"]
+    return out
 
 
 def _worker(job: tuple[str, str, str | None]) -> dict[str, Any]:

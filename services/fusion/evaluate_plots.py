@@ -80,7 +80,8 @@ def ablation_bars(tables: dict[str, dict[str, Any]], folder: Path, name: str = "
     x = np.arange(len(variants))
     for i, (label, t) in enumerate(tables.items()):
         merged = t.get("subsets", {}) | t.get("degraded", {})
-        y = [merged.get(v, {}).get("tip_rmse_mm", np.nan) for v in variants]
+        y = [merged.get(v, {}).get("tip_rmse_mm") for v in variants]
+        y = [np.nan if x is None else x for x in y]
         ax.bar(x + (i - (len(tables) - 1) / 2) * width, y, width, label=label)
     ax.set_xticks(x, variants, rotation=30, ha="right")
     ax.set_ylabel("pooled tip RMSE [mm]")

@@ -1,0 +1,305 @@
+"""`tiplog evaluate --paper [--out DIR] [--seed N] [--quick] [--jobs J] [--force]`: the whole
+study on the bench, one command, one report.
+
+1. Generates the sessions (static, latency, fit, translation, rotation, sweeps, teleop;
+   measurement tier) by running `tiplog sim generate` as subprocesses, `--jobs` at a time
+   (`--quick` cuts them with `--duration` to a smoke test, not the paper's conditions).
+2. Runs every analysis in a process pool of `--jobs` workers (default: the cores), each
+   worker reading its MCAP itself: `tiplog calibrate block FIT --latency LAT` (subprocess),
+   the latency table, the translation and rotation protocols (static-trial filter), the
+   magnetometer study, static stability, and on sweeps and teleop every sensor subset and
+   degraded vision (`services.fusion.ablation`) plus full fusion with the calibrate output.
+3. Writes DIR/report.md (tables with the paper's figures beside ours, wall time at the top),
+   DIR/report.json and DIR/*.png. A step that fails is reported (one line) and the rest go on.
+
+The estimators read only device/vision topics and the calibration (as-calibrated metadata or
+the calibrate output); the ground truth is read by the scoring only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from pathlib import Path
+from typing import Any
+
+from services.fusion.evaluation import public
+from tiplog.userio import UserError
+
+log = logging.getLogger("tiplog.evaluate")
+
+SCENARIOS = ("static", "latency", "fit", "translation", "rotation", "sweeps", "teleop")
+# --quick: seconds per session. The fit block stays whole (ten poses are what it needs), the
+# latency protocol keeps its first three depth frequencies (three per channel are needed).
+QUICK_DURATION_S = {
+    "static": 40,
+    "latency": 150,
+    "fit": None,
+    "translation": 40,
+    "rotation": 40,
+    "sweeps": 40,
+    "teleop": 40,
+}
+CONTINUOUS = ("sweeps", "teleop")
+
+
+def _tiplog(*args: str) -> list[str]:
+    return [sys.executable, "-m", "tiplog.cli", *args]
+
+
+def _generate(scen: str, out: Path, seed: int, duration: float | None) -> tuple[str, float]:
+    cmd = _tiplog("sim", "generate", "--scenario", scen, "--out", str(out), "--seed", str(seed), "--quiet", "--force")
+    if duration is not None:
+        cmd += ["--duration", str(duration)]
+    t0 = time.monotonic()
+    r = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if r.returncode != 0:
+        raise RuntimeError(f"sim generate {scen}: {(r.stderr or r.stdout).strip().splitlines()[-1:]}")
+    return scen, time.monotonic() - t0
+
+
+# ---- analysis tasks (run in worker processes; each reads its files itself) ----
+
+
+def _task_calibrate(d: Path) -> dict[str, Any]:
+    s = d / "sessions"
+    base = ["calibrate", "block", str(s / "fit.mcap"), "--out", str(d / "calibration.yaml"), "--json", "--force"]
+    r = subprocess.run(_tiplog(*base, "--latency", str(s / "latency.mcap")), capture_output=True, text=True)
+    note = None
+    if r.returncode != 0:  # the latency fit can refuse a short latency session: calibrate without it
+        note = f"latency not fitted: {r.stderr.strip()}"
+        r = subprocess.run(_tiplog(*base), capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(r.stderr.strip() or "calibrate block failed")
+    text = r.stdout.strip()
+    report = json.loads(text[: text.rfind("}") + 1])
+    return {"file": "calibration.yaml", "report": report, "note": note}
+
+
+def _task_latency(d: Path) -> dict[str, Any]:
+    from services.fusion import calibrate_data, calibrate_latency
+
+    data = calibrate_data.load(d / "sessions" / "latency.mcap")
+    return calibrate_latency.latency_table(data, data.prior)
+
+
+def _task_protocol(d: Path, scen: str, calibrated: bool = False) -> dict[str, Any]:
+    from services.fusion.evaluate_static import evaluate_static
+    from tiplog.calibration import Calibration
+
+    cal = Calibration.load_yaml(d / "calibration.yaml") if calibrated else None
+    return evaluate_static(d / "sessions" / f"{scen}.mcap", cal)
+
+
+def _task_magnetometer(d: Path) -> dict[str, Any]:
+    from services.fusion.calibrate_data import load
+    from services.fusion.evaluate_static_magnetometer import rotation_study, static_study
+
+    s = d / "sessions"
+    out: dict[str, Any] = {"rotation": rotation_study(load(s / "rotation.mcap"))}
+    try:
+        out["static"] = static_study(load(s / "static.mcap"))
+    except UserError as e:  # a quick static session may hold too little
+        out["static_error"] = str(e)
+    return out
+
+
+def _task_stability(d: Path) -> dict[str, Any]:
+    from services.fusion.evaluate_holds import evaluate_holds
+
+    return evaluate_holds(d / "sessions" / "static.mcap")
+
+
+def _task_variant(d: Path, scen: str, variant: str, calibrated: bool = False) -> dict[str, Any]:
+    from services.fusion.ablation import evaluate_variant
+
+    cal = d / "calibration.yaml" if calibrated else None
+    return evaluate_variant(d / "sessions" / f"{scen}.mcap", variant, cal, series=variant == "full")
+
+
+def _run_task(name: str, fn_name: str, args: tuple) -> tuple[str, Any, str | None, float]:
+    """Worker entry: (name, result or None, error line or None, seconds)."""
+    t0 = time.monotonic()
+    try:
+        return name, globals()[fn_name](*args), None, time.monotonic() - t0
+    except Exception as e:  # noqa: BLE001 - one failed step is reported, the study goes on
+        msg = str(e).strip().splitlines()
+        return name, None, f"{type(e).__name__}: {msg[-1] if msg else ''}", time.monotonic() - t0
+
+
+def _short(name: str, r: Any) -> str:
+    if not isinstance(r, dict):
+        return ""
+    if "tip_rmse_mm" in r:
+        return f"tip RMSE {r['tip_rmse_mm']:.2f} mm"
+    if "translation" in r:
+        return f"RMSE {r['translation']['rmse_mm']:.2f} mm, scale {r['translation']['scale']:.3f}"
+    if "rotation" in r and "relrot_rmse_deg" in r["rotation"]:
+        return f"rel. rot. {r['rotation']['relrot_rmse_deg']:.3f} deg"
+    return ""
+
+
+def _tasks(d: Path) -> list[tuple[str, str, tuple]]:
+    """Longest first, so the pool ends together."""
+    from services.fusion.ablation import variants
+
+    out = [
+        ("translation", "_task_protocol", (d, "translation")),
+        ("rotation", "_task_protocol", (d, "rotation")),
+        ("stability", "_task_stability", (d,)),
+        ("calibrate", "_task_calibrate", (d,)),
+    ]
+    out += [(f"ablation:{s}:{v}", "_task_variant", (d, s, v)) for s in ("teleop", "sweeps") for v in variants()]
+    out += [("magnetometer", "_task_magnetometer", (d,)), ("latency", "_task_latency", (d,))]
+    return out
+
+
+AFTER_CALIBRATE = [
+    ("translation_calibrated", "_task_protocol", ("translation", True)),
+    *[(f"calibrated:{s}", "_task_variant", (s, "full", True)) for s in CONTINUOUS],
+]
+
+
+def check_out(out: Path, force: bool) -> None:
+    if out.exists() and not force:
+        raise UserError(f"{out}: exists, use --force to write the report into it")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a folder")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise UserError(f"{out}: cannot create the folder here ({parent} missing or not writable)")
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.out or "paper_report")
+    check_out(out, args.force)
+    if args.jobs is not None and args.jobs < 1:
+        raise UserError(f"--jobs: must be 1 or more, got {args.jobs}")
+    jobs = args.jobs or os.cpu_count() or 1
+    wall0 = time.monotonic()
+
+    def say(msg: str) -> None:
+        print(f"[{time.monotonic() - wall0:7.1f} s] {msg}", flush=True)
+
+    (out / "sessions").mkdir(parents=True, exist_ok=True)
+    durations = {s: (QUICK_DURATION_S[s] if args.quick else None) for s in SCENARIOS}
+    say(
+        f"generating {len(SCENARIOS)} bench sessions (seed {args.seed}{', quick' if args.quick else ''}), {jobs} at a time"
+    )
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futs = [
+            pool.submit(_generate, s, out / "sessions" / f"{s}.mcap", args.seed, durations[s])
+            for s in sorted(SCENARIOS, key=lambda s: s in ("fit", "latency"))
+        ]
+        for f in futs:
+            scen, sec = f.result()
+            say(f"generated {scen} in {sec:.1f} s")
+    res = analyse(out, jobs, say)
+    res.update(seed=args.seed, quick=bool(args.quick), jobs=jobs, sessions=_session_info(out))
+    res["plots"] = _plots(res, out, say)
+    res["wall_time_s"] = time.monotonic() - wall0
+    from services.fusion.paper_report import markdown
+
+    (out / "report.json").write_text(json.dumps(public(res), indent=1) + "\n")
+    (out / "report.md").write_text(markdown(res))
+    say(f"wrote {out / 'report.md'}, {out / 'report.json'} and {len(res['plots'])} plots")
+    return 0
+
+
+def analyse(out: Path, jobs: int, say) -> dict[str, Any]:
+    """Every analysis task in a process pool; results gathered into the report's dict."""
+    results: dict[str, Any] = {}
+    errors: dict[str, str] = {}
+    tasks = _tasks(out)
+    total = len(tasks) + len(AFTER_CALIBRATE)
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        pending: set[Future] = {pool.submit(_run_task, *t) for t in tasks}
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in done:
+                name, r, err, sec = f.result()
+                if err:
+                    errors[name] = err
+                else:
+                    results[name] = r
+                n = len(results) + len(errors)
+                say(f"{n}/{total} {name} ({sec:.1f} s): {err or _short(name, r)}")
+                if name == "calibrate":
+                    for nm, fn, a in AFTER_CALIBRATE:
+                        if err:
+                            errors[nm] = "no calibration file (calibrate failed)"
+                        else:
+                            pending.add(pool.submit(_run_task, nm, fn, (out, *a)))
+    return gather(results, errors)
+
+
+def gather(results: dict[str, Any], errors: dict[str, str]) -> dict[str, Any]:
+    """The report's dict from the tasks' results (keys documented in docs/evaluation.md)."""
+    res: dict[str, Any] = {"errors": errors}
+    for k in ("translation", "rotation"):
+        if k in results:
+            res[k] = results[k][k]
+            res[f"_{k}_errors"] = results[k]  # with private per-trial errors, for the boxplots
+    if "translation_calibrated" in results:
+        res["translation_calibrated"] = results["translation_calibrated"]["translation"]
+    for k in ("stability", "latency", "magnetometer", "calibration"):
+        if k in results or (k == "calibration" and "calibrate" in results):
+            res[k] = results["calibrate" if k == "calibration" else k]
+    res["dynamic"] = {}
+    res["subsets"], res["degraded"] = {}, {}
+    for name, r in results.items():
+        if name.startswith("ablation:"):
+            _, scen, variant = name.split(":")
+            key = "subsets" if r["kind"] == "subset" else "degraded"
+            row = res[key].setdefault(variant, {"tip_rmse_mm": {}, "tip_p95_mm": {}, "block_mean_mm": {}, "resets": {}})
+            for m in row:
+                row[m][scen] = r[m]
+            if variant == "full":
+                res["dynamic"].setdefault(scen, {})["as_calibrated"] = r
+        elif name.startswith("calibrated:"):
+            res["dynamic"].setdefault(name.split(":")[1], {})["calibrated"] = r
+    return res
+
+
+def _session_info(out: Path) -> dict[str, Any]:
+    from tiplog.mcap_io import read_metadata
+
+    info = {}
+    for s in SCENARIOS:
+        p = out / "sessions" / f"{s}.mcap"
+        md = read_metadata(p).get("session", {})
+        info[s] = {"path": str(p.relative_to(out)), "duration_s": float(md.get("duration_s", "nan"))}
+    return info
+
+
+def _plots(res: dict[str, Any], out: Path, say) -> list[str]:
+    try:
+        from services.fusion.evaluate_plots import ablation_bars, protocol_boxplots
+        from services.fusion.evaluation import plot
+    except ImportError as e:
+        say(f"no plots ({e})")
+        return []
+    files: list[Path] = []
+    for k in ("translation", "rotation"):
+        if f"_{k}_errors" in res:
+            files += protocol_boxplots(res[f"_{k}_errors"], out)
+    for d in res["dynamic"].values():
+        a = d.get("as_calibrated")
+        if a and "_series" in a:
+            files += plot(a, out)
+    tables = {
+        s: {
+            "subsets": {v: {"tip_rmse_mm": r["tip_rmse_mm"].get(s)} for v, r in res["subsets"].items()},
+            "degraded": {v: {"tip_rmse_mm": r["tip_rmse_mm"].get(s)} for v, r in res["degraded"].items()},
+        }
+        for s in CONTINUOUS
+    }
+    if res["subsets"]:
+        files.append(ablation_bars(tables, out))
+    return [f.name for f in files]
