@@ -1,0 +1,73 @@
+"""`tiplog evaluate --paper --quick` end to end as a user runs it (a real subprocess making its
+own bench sessions, a process pool): every report key, every table, the plots, the wall time;
+and an existing report folder is refused without --force."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from services.fusion.ablation import DEGRADED, SUBSETS
+from services.fusion.paper_report import PAPER_TRANSLATION_STEPS, markdown
+from tiplog.cli import main as tiplog_main
+
+
+def test_an_existing_report_folder_is_refused_without_force(tmp_path, capsys):
+    out = tmp_path / "rep"
+    out.mkdir()
+    assert tiplog_main(["evaluate", "--paper", "--quick", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--force" in err[0] and str(out) in err[0]
+    assert list(out.iterdir()) == []  # nothing generated
+
+
+def test_a_failed_step_is_reported_not_fatal():
+    res = {
+        "wall_time_s": 12.0,
+        "jobs": 2,
+        "seed": 1,
+        "quick": True,
+        "sessions": {},
+        "errors": {"translation": "UserError: no trials"},
+        "dynamic": {},
+        "subsets": {},
+        "degraded": {},
+    }
+    md = markdown(res)
+    assert "Wall time: 12 s" in md.splitlines()[2]
+    assert "_Not measured: UserError: no trials_" in md
+    assert "| translation.rmse_mm | ≤ 1.21 | n/a | no |" in md
+
+
+@pytest.mark.slow
+def test_paper_quick_end_to_end(tmp_path):
+    out = tmp_path / "paper"
+    cmd = [sys.executable, "-m", "tiplog.cli", "evaluate", "--paper", "--quick", "--out", str(out), "--jobs", "2"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "generating 7 bench sessions" in r.stdout and "29/29" in r.stdout  # progress lines
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["errors"] == {}, rep["errors"]
+    assert rep["wall_time_s"] > 0 and rep["quick"] is True
+    t, rot = rep["translation"], rep["rotation"]
+    assert 0 < t["rmse_mm"] < 5 and 0.5 < t["scale"] < 1.5 and t["all"]["ci95"][0] <= t["rmse_mm"]
+    assert any(s["held_out"] for s in t["per_step"].values()) or set(t["per_step"]) <= {"5", "10", "20"}
+    assert 0 < rot["angle_rmse_deg"] and 0 < rot["relrot_rmse_deg"] and 0 < rot["tip_rmse_mm"]
+    for scen in ("sweeps", "teleop"):
+        for name in SUBSETS:
+            assert rep["subsets"][name]["tip_rmse_mm"][scen] > 0
+        for name in DEGRADED:
+            assert rep["degraded"][name]["tip_rmse_mm"][scen] > 0
+        assert rep["dynamic"][scen]["calibrated"]["tip_rmse_mm"] > 0
+    assert rep["latency"] and rep["stability"]["holds"] and rep["magnetometer"]["rotation"]["trials"] > 0
+    assert rep["calibration"]["report"] and (out / "calibration.yaml").exists()
+    md = (out / "report.md").read_text()
+    assert md.splitlines()[2].startswith("Wall time:")
+    for title in ("Static stability", "Observation latency", "Translation", "Rotation", "Magnetometer", "Dynamic"):
+        assert f"## {title}" in md
+    assert f"{PAPER_TRANSLATION_STEPS['All'][0]:.2f} [" in md  # the paper's figure beside ours
+    for png in ("translation_boxplots.png", "rotation_boxplots.png", "ablations.png", "sweep_pitch.png"):
+        assert (out / png).stat().st_size > 5_000
