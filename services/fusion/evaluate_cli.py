@@ -45,7 +45,7 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jobs", type=int, help="worker processes (default: the number of cores)")
     p.add_argument("--paper", action="store_true", help="the whole study on the bench, one report")
     p.add_argument("--out", help="--paper: report folder (default paper_report)")
-    p.add_argument("--seed", type=int, default=1, help="--paper: bench seed (default 1)")
+    p.add_argument("--seed", type=int, help="--paper: bench seed (default 1)")
     p.add_argument(
         "--quick", action="store_true", help="--paper: short sessions (a smoke test, not the paper's figures)"
     )
@@ -107,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
         from services.fusion import paper
 
         return paper.run(args)
-    if args.out:
-        raise UserError("--out: only with --paper (use --json for a session's result)")
+    if args.out or args.quick or args.seed is not None:
+        raise UserError("--out, --seed, --quick: only with --paper (use --json for a session's result)")
     if not args.session:
         raise UserError("give a bench session (SESSION.mcap), or --paper for the whole study")
     if not args.json_out:

@@ -182,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise UserError(f"--jobs: must be 1 or more, got {args.jobs}")
     jobs = args.jobs or os.cpu_count() or 1
+    seed = 1 if args.seed is None else args.seed
     wall0 = time.monotonic()
 
     def say(msg: str) -> None:
@@ -189,19 +190,17 @@ def run(args: argparse.Namespace) -> int:
 
     (out / "sessions").mkdir(parents=True, exist_ok=True)
     durations = {s: (QUICK_DURATION_S[s] if args.quick else None) for s in SCENARIOS}
-    say(
-        f"generating {len(SCENARIOS)} bench sessions (seed {args.seed}{', quick' if args.quick else ''}), {jobs} at a time"
-    )
+    say(f"generating {len(SCENARIOS)} bench sessions (seed {seed}{', quick' if args.quick else ''}), {jobs} at a time")
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futs = [
-            pool.submit(_generate, s, out / "sessions" / f"{s}.mcap", args.seed, durations[s])
+            pool.submit(_generate, s, out / "sessions" / f"{s}.mcap", seed, durations[s])
             for s in sorted(SCENARIOS, key=lambda s: s in ("fit", "latency"))
         ]
         for f in futs:
             scen, sec = f.result()
             say(f"generated {scen} in {sec:.1f} s")
     res = analyse(out, jobs, say)
-    res.update(seed=args.seed, quick=bool(args.quick), jobs=jobs, sessions=_session_info(out))
+    res.update(seed=seed, quick=bool(args.quick), jobs=jobs, sessions=_session_info(out))
     res["plots"] = _plots(res, out, say)
     res["wall_time_s"] = time.monotonic() - wall0
     from services.fusion.paper_report import markdown

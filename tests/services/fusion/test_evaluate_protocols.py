@@ -88,6 +88,7 @@ def test_what_cannot_be_evaluated_is_one_line(tmp_path_factory, tmp_path, capsys
     _one_line_error(capsys, ["evaluate", "--json", out], "--paper")
     _one_line_error(capsys, ["evaluate", str(trans), "--paper"], "--paper")
     _one_line_error(capsys, ["evaluate", str(trans), "--json", out, "--jobs", "0"], "--jobs")
+    _one_line_error(capsys, ["evaluate", str(trans), "--json", out, "--quick"], "only with --paper")
     assert not (tmp_path / "r.json").exists()
     (tmp_path / "r.json").write_text("{}")
     _one_line_error(capsys, ["evaluate", str(trans), "--json", out], "--force")
