@@ -42,5 +42,12 @@ class RecorderConfig(ServiceConfig):
     max_queue_messages: int = Field(200_000, ge=100)
     # Recorded as an attachment and metadata in every file when given.
     calibration_file: str | None = None
+    # Payloads that are not a well-formed message of their topic's type (see
+    # services/recorder/admission.py) never enter the topic's channel; they are counted and,
+    # unless `quarantine` is off, kept on `_rejected/<topic>:<reason>` up to these sizes
+    # (larger ones, and those beyond the per-file budget, are counted as dropped there).
+    quarantine: bool = True
+    quarantine_max_payload_bytes: int = Field(8 * MiB, ge=0)
+    quarantine_max_bytes_per_file: int = Field(64 * MiB, ge=0)
     # Session name prefix; a session is `<prefix><UTC start time>` unless named on START.
     session_prefix: str = "tiplog_"

@@ -87,6 +87,19 @@ class Counting:
             c.dropped += 1
             return c.dropped
 
+    def rejected(self, quarantine_topic: str, kept: bool) -> int:
+        """A payload rejected by the admission check (already counted as received on its own
+        topic), under its `_rejected/<topic>:<reason>` entry: received there, and written
+        when kept in the quarantine channel, else dropped. Returns the entry's count."""
+        with self._lock:
+            c = self._counts[quarantine_topic]
+            c.received += 1
+            if kept:
+                c.written += 1
+            else:
+                c.dropped += 1
+            return c.received
+
     def written(self, topic: str) -> None:
         with self._lock:
             self._counts[topic].written += 1

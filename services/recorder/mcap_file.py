@@ -81,6 +81,7 @@ class RecordingFile:
         # last one, and cutting back one more record frees the room for it.
         self._boundaries: deque[int] = deque(maxlen=16)
         self.written_by_topic: dict[str, int] = {}
+        self.quarantined_bytes = 0  # payload bytes kept on `_rejected/...` channels
         self.first_log_ns: int | None = None
         self.last_log_ns: int | None = None
         self.closed = False

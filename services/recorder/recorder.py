@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from services.recorder.admission import QUARANTINE_TYPE, Admission, quarantine_record, quarantine_topic
 from services.recorder.config import RecorderConfig
 from services.recorder.counting import Counting
 from services.recorder.mcap_file import Opener, RecordingFile, open_file
@@ -76,6 +77,7 @@ class Recorder(SessionFiles):
         self._extra_attachments = extra_attachments or {}  # name -> (data, media type)
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._counting = Counting(config.max_queue_bytes, config.max_queue_messages)
+        self._admission = Admission()  # used on the writer thread only
         # autostart=always: the start command is queued first, and every sample from now on
         # (the subscription may already be declared) queues behind it and lands in the first
         # file: a publisher that sees the subscription may start at once (`tiplog replay` does).
@@ -221,6 +223,10 @@ class Recorder(SessionFiles):
         if f is None:  # arrived while a stop or a fault was on its way
             self._counting.unrecorded(info.topic, dropped=self.state == S.RECORDER_STATE_ERROR)
             return
+        reason = self._admission.check(info.topic, info.type_name, payload)
+        if reason is not None:
+            self._reject(f, payload, info, reason)
+            return
         try:
             f.write(info.topic, info.type_name, payload, info.receive_ns, info.publish_ns, info.seq)
         except OSError as e:
@@ -232,6 +238,35 @@ class Recorder(SessionFiles):
                 log.warning("cannot record %s: %s", info.topic, e)
             return
         self._counting.written(info.topic)
+
+    def _reject(self, f: RecordingFile, payload: bytes, info: SampleInfo, reason: str) -> None:
+        """Keep a payload that failed the admission check off its topic's channel: counted under
+        `_rejected/<topic>:<reason>` and, within the configured sizes, kept there."""
+        qtopic = quarantine_topic(info.topic, reason)
+        cfg = self.config
+        keep = (
+            cfg.quarantine
+            and len(payload) <= cfg.quarantine_max_payload_bytes
+            and f.quarantined_bytes + len(payload) <= cfg.quarantine_max_bytes_per_file
+        )
+        if keep:
+            record = quarantine_record(info.type_name, payload)
+            try:
+                f.write(qtopic, QUARANTINE_TYPE, record, info.receive_ns, info.publish_ns, info.seq)
+            except OSError as e:
+                self._counting.rejected(qtopic, kept=False)
+                self._fault(f"write failed: {e}")
+                return
+            f.quarantined_bytes += len(payload)
+        if self._counting.rejected(qtopic, kept=keep) == 1:  # once per topic, reason and session
+            log.warning(
+                "rejected a payload on %s (%s; claimed type %.80r, %d bytes): %s",
+                info.topic,
+                reason,
+                info.type_name,
+                len(payload),
+                f"kept on {qtopic}" if keep else "not kept",
+            )
 
     def _guard(self, fn: Callable[[], None]) -> None:
         try:

@@ -30,7 +30,9 @@ NS_PER_S = 1_000_000_000
 # at load 4 on 2 cores; 0.1 ms, 1-4%).
 SPIN_NS = 100_000
 # Published by the live system itself: replaying them would confuse the running services.
-DEFAULT_EXCLUDE = ("recorder/",)
+# `_rejected/` holds payloads the recorder kept out of their topics (admission.py): never
+# published again unless named.
+DEFAULT_EXCLUDE = ("recorder/", "_rejected/")
 
 
 @dataclass

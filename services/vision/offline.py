@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from google.protobuf import any_pb2  # noqa: F401  (the recorder's _rejected/ channels are copied too)
 from mcap.reader import make_reader
 
 from services.vision.frames import FrameError, decode_frame

@@ -96,7 +96,9 @@ def test_record_run_foreground_stops_on_sigint(bus_pair_configs, tmp_path):
             st = watch.wait(lambda s: s.state == S.RECORDER_STATE_RECORDING, timeout=30)
             pub = bus.publisher("device/tof")
             for k in range(20):
-                pub.put(device_pb2.Tof(range_raw_mm=float(k)))
+                m = device_pb2.Tof(range_raw_mm=float(k))
+                m.header.stamp_ns = k + 1
+                pub.put(m)
             watch.wait(lambda s: "device/tof" in s.topics and s.topics["device/tof"].written == 20)
             proc.send_signal(signal.SIGINT)
             assert proc.wait(10) == 0

@@ -22,8 +22,9 @@ A = recorder_pb2.RecorderAction
 S = recorder_pb2.RecorderState
 
 
-def gyro(seq: int) -> bytes:
+def gyro(seq: int, frame_id: str = "") -> bytes:
     m = device_pb2.Gyro()
+    m.header.frame_id = frame_id
     m.header.seq = seq
     m.header.stamp_ns = 5_000_000 * seq
     m.rate_radps.x = 1e-3 * seq
@@ -158,10 +159,10 @@ def test_disk_full_keeps_file_valid_and_raises_alarm(tmp_path):
     rec.start_thread()
     try:
         assert rec.command(cmd(A.RECORDER_ACTION_START, session="full")).ok
-        big = b"\x7a\xb8\x17" + b"\x01" * 3000  # an unknown field 15 of 3000 bytes: kept, ignored
+        big = "\x01" * 3000  # a 3000-byte frame name: messages of 3 kB
         k = 0
         while rec.state == S.RECORDER_STATE_RECORDING and k < 10_000:
-            rec.on_sample(gyro(k) + big, info(k))
+            rec.on_sample(gyro(k, big), info(k))
             k += 1
             if k % 20 == 0:
                 rec.command(cmd(A.RECORDER_ACTION_STATUS))  # let the writer catch up now and then

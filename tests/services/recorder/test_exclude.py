@@ -14,11 +14,12 @@ def test_excluded_topics_are_not_recorded(served_recorder):
     st = srv.status.wait(lambda s: s.state == S.RECORDER_STATE_RECORDING)
     gyro, tof, status = (srv.bus.publisher(t) for t in ("device/gyro", "device/tof", "device/status"))
     robot = srv.bus.publisher("bench/robot")
+    header = {"header": {"stamp_ns": 1}}
     for k in range(20):
-        gyro.put(device_pb2.Gyro())
-        robot.put(robot.msg_type())
-        tof.put(device_pb2.Tof(range_raw_mm=float(k)))
-    status.put(device_pb2.DeviceStatus())
+        gyro.put(device_pb2.Gyro(**header))
+        robot.put(robot.msg_type(**header))
+        tof.put(device_pb2.Tof(range_raw_mm=float(k), **header))
+    status.put(device_pb2.DeviceStatus(**header))
     srv.status.wait(lambda s: "device/status" in s.topics and s.topics["device/status"].written == 1)
     final = srv.status.wait(lambda s: "device/tof" in s.topics and s.topics["device/tof"].written == 20)
     assert "device/gyro" not in final.topics and "bench/robot" not in final.topics

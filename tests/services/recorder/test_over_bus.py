@@ -3,6 +3,7 @@ alarm on recorder/status, automatic start on device/status, and the control comm
 
 from __future__ import annotations
 
+import base64
 import collections
 import os
 import random
@@ -41,6 +42,7 @@ def make_session(path) -> dict[str, list[tuple[int, bytes]]]:
                 m = device_pb2.Tof(range_raw_mm=100.0 + k, status=device_pb2.TOF_STATUS_VALID)
             else:
                 m = RawImage_pb2.RawImage(width=32, height=24, encoding="rgb8", step=96, data=bytes([k]) * (96 * 24))
+                m.timestamp.FromNanoseconds(t)
             if topic != "camera/image":
                 m.header.seq = k
                 m.header.stamp_ns = t
@@ -129,10 +131,11 @@ def test_full_disk_alarm_on_status_recorder_stays_up(served_recorder, tmp_path):
     assert srv.command(A.RECORDER_ACTION_START, session="full").ok
     pub = srv.bus.publisher("device/gyro")
     rng = random.Random(5)
-    for k in range(400):  # 1.2 MB of incompressible bytes: four times the room on the disk
+    for k in range(400):  # 1.6 MB that lz4 cannot shrink: five times the room on the disk
         m = device_pb2.Gyro()
         m.header.seq = k
-        pub.put_bytes(m.SerializeToString() + b"\x7a\xb8\x17" + rng.randbytes(3000))  # unknown field 15
+        m.header.frame_id = base64.b64encode(rng.randbytes(3000)).decode()
+        pub.put(m)
     err = srv.status.wait(lambda s: s.state == S.RECORDER_STATE_ERROR)
     assert "No space left" in err.alarm
     # Still alive and answering; the file is valid up to the failure.
