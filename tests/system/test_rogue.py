@@ -1,10 +1,13 @@
 """A rogue process on the bus: garbage, wrongly typed and oversized payloads on every tiplog
 key while `tiplog up` runs the whole system. Nothing crashes (no service restarted), states
 keep reaching the page, the decode errors are counted (fusion's diagnostics) and logged by
-the services that subscribe, and the recording stays valid."""
+the services that subscribe, and the recording stays valid: the recorder keeps the forged
+payloads out of their topics' channels and counts them."""
 
 from __future__ import annotations
 
+import collections
+import json
 import subprocess
 import sys
 
@@ -12,7 +15,7 @@ import pytest
 
 from tests.conftest import ROOT
 from tests.system.harness import UpRun
-from tiplog.mcap_io import read_messages, read_summary
+from tiplog.mcap_io import read_messages, read_metadata, read_summary
 from tiplog.topics import TOPICS
 
 pytestmark = pytest.mark.slow
@@ -81,8 +84,19 @@ def test_rogue_publisher_on_every_key(tmp_path):
     assert "undecodable payload on" in log
     (rec,) = up.recordings()
     assert read_summary(rec) is not None
-    # The recorder archives payloads undecoded, so the rogue's forged ones are in the file too;
-    # the offline filter still reads it and tracks.
+    # The recorder kept every forged payload out of its topic's channel: the file reads back
+    # whole, holds what the recorder says it wrote, and counts the rejects per topic and reason
+    # (kept on `_rejected/<topic>:<reason>`, the 16 MiB ones counted but not kept).
+    in_file = collections.Counter(r.topic for r in read_messages(rec))
+    counts = {t: json.loads(v) for t, v in read_metadata(rec)["recorder_counts"].items()}
+    assert {t: n for t, n in in_file.items()} == {t: c["written"] for t, c in counts.items() if c["written"]}
+    # (the rogue puts without congestion control: some of its 20 rounds are lost on the way)
+    for topic in ("device/gyro", "device/tof", "fusion/state"):
+        assert counts[f"_rejected/{topic}:undecodable"]["received"] >= 5, counts
+        assert counts[f"_rejected/{topic}:wrong_type"]["received"] >= 20, counts
+    assert sum(c["dropped"] for t, c in counts.items() if t.endswith(":no_type")) >= 1, counts  # 16 MiB ones
+    assert in_file["device/gyro"] > 200
+    # The offline filter reads it and tracks.
     out = tmp_path / "offline.mcap"
     p = subprocess.run(
         [sys.executable, "-m", "tiplog.cli", "fusion", "run", str(rec), "--out", str(out), "--quiet"],
