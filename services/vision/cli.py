@@ -35,7 +35,8 @@ def register(p: argparse.ArgumentParser) -> None:
     r.add_argument("--weights", help=f"network checkpoint (default {DEFAULT_WEIGHTS.name} shipped in models/)")
     r.add_argument("--calibration", help="calibration YAML (default: the recording's own metadata)")
     r.add_argument("--device", default="cpu", help="auto, cpu or cuda (cpu is deterministic)")
-    r.add_argument("--threads", type=int, default=1, help="CPU threads for torch")
+    r.add_argument("--threads", type=int, default=1, help="CPU threads for torch, per worker")
+    r.add_argument("--workers", type=int, default=2, help="frames processed side by side (same output for any number)")
     r.add_argument("--force", action="store_true", help="overwrite an existing output file")
     r.add_argument("--quiet", action="store_true", help="no progress on stderr")
     r.set_defaults(func=_run)
@@ -92,8 +93,10 @@ def _run(args: argparse.Namespace) -> int:
     src = input_mcap(args.recording)
     weights = input_file(args.weights or DEFAULT_WEIGHTS, "network checkpoint")
     calib = input_file(args.calibration, "calibration file") if args.calibration else None
+    if args.workers < 1:
+        raise UserError(f"--workers must be at least 1 (got {args.workers})")
     with atomic_output(args.out, args.force) as tmp:
-        summary = run_file(src, tmp, weights, calib, args.device, args.threads, quiet=args.quiet)
+        summary = run_file(src, tmp, weights, calib, args.device, args.threads, args.quiet, args.workers)
     print(
         f"{args.out}: {summary['frames']} frames, {summary['accepted']} accepted, {summary['rejected']} rejected "
         f"in {summary['seconds']:.1f} s ({summary['fps']:.1f} frames/s)",

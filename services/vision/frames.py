@@ -34,11 +34,10 @@ def decode_frame(msg: RawImage, camera: CameraModel | None) -> np.ndarray:
         raise FrameError("bad_size", f"frame is {msg.width}x{msg.height}")
     row = msg.width * 3
     step = msg.step or row
-    if step < row or len(msg.data) < step * (msg.height - 1) + row:
-        raise FrameError(
-            "bad_data", f"{len(msg.data)} bytes for {msg.width}x{msg.height} {msg.encoding} (step {msg.step})"
-        )
-    buf = np.frombuffer(msg.data, np.uint8)
+    data = msg.data  # each read of a bytes field copies it out of the message: read it once
+    if step < row or len(data) < step * (msg.height - 1) + row:
+        raise FrameError("bad_data", f"{len(data)} bytes for {msg.width}x{msg.height} {msg.encoding} (step {msg.step})")
+    buf = np.frombuffer(data, np.uint8)
     if step == row and len(buf) >= row * msg.height:
         img = buf[: row * msg.height].reshape(msg.height, msg.width, 3)
     else:

@@ -2,12 +2,14 @@
 pipeline as the live service. The output holds vision/observation (logged at each frame's
 capture stamp, which its header carries unchanged) beside every other topic and metadata record
 of the input except camera/image, so that it is a complete session for offline fusion. On the
-CPU the observations are deterministic (all but the processing time)."""
+CPU the observations are deterministic (all but the processing time), whatever the number of
+workers."""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
@@ -16,6 +18,7 @@ from mcap.reader import make_reader
 
 from services.vision.frames import FrameError, decode_frame
 from services.vision.network import load_checkpoint
+from services.vision.overlap import ordered_map
 from services.vision.pipeline import Pipeline
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.camera_model import CameraModel
@@ -52,8 +55,13 @@ def run_file(
     device: str = "cpu",
     threads: int = 1,
     quiet: bool = False,
+    workers: int = 2,
 ) -> dict:
-    """Process every camera/image of `src` into `out`; returns counts, seconds and frames/s."""
+    """Process every camera/image of `src` into `out`; returns counts, seconds and frames/s.
+
+    `workers` frames are processed side by side (services.vision.overlap), each with `threads`
+    torch threads, while this thread reads, decodes and writes; the output is the same, in the
+    same order, for any number of workers."""
     import torch
 
     if threads > 0:
@@ -66,36 +74,49 @@ def run_file(
     pipe = Pipeline(seg, calib.shaft_radius_m)
     total = _frame_count(src)
     counts = {"frames": 0, "accepted": 0, "rejected": 0}
-    camera: CameraModel | None = None
     t0 = time.perf_counter()
-    with open(src, "rb") as f, McapWriter(out) as w:
-        reader = make_reader(f)
-        for name, rec in read_metadata(src).items():
-            w.add_metadata(name, rec)
+
+    def items(reader) -> Iterator[tuple]:
+        """("copy", schema, message) for what is copied, ("frame", k, message, camera) per frame."""
+        camera: CameraModel | None = None
+        k = 0
         for schema, channel, message in reader.iter_messages(log_time_order=True):
             topic = channel.topic
-            if topic != "camera/image":
-                if topic != "vision/observation":  # the bench's measurement-tier stand-in is replaced
-                    w.write_raw(topic, schema.name, message.data, message.log_time, message.publish_time,
-                                message.sequence)  # fmt: skip
+            if topic == "camera/image":
+                yield ("frame", k, message, camera)
+                k += 1
+            elif topic != "vision/observation":  # the bench's measurement-tier stand-in is replaced
                 if topic == "camera/info":
                     camera = CameraModel.from_calibration(_camera_info(message.data))
+                yield ("copy", schema, channel, message)
+
+    def observe(item: tuple) -> vision_pb2.VisionObservation:
+        _, k, message, camera = item
+        msg = RawImage.FromString(message.data)
+        stamp = msg.timestamp.ToNanoseconds()
+        try:
+            if camera is None:
+                raise FrameError("no_camera_info", "camera/image before any camera/info")
+            obs = pipe.process(decode_frame(msg, camera), camera, stamp, k).obs
+        except FrameError as e:
+            obs = vision_pb2.VisionObservation(accepted=False, reject_reason=f"frame:{e.reason}")
+            obs.header.stamp_ns, obs.header.seq = stamp, k
+        obs.processed_stamp_ns = stamp + int(round(obs.processing_ms * 1e6))
+        return obs
+
+    with open(src, "rb") as f, McapWriter(out) as w:
+        for name, rec in read_metadata(src).items():
+            w.add_metadata(name, rec)
+        for res in ordered_map(observe, items(make_reader(f)), workers, passthrough=lambda it: it[0] == "copy"):
+            if isinstance(res, tuple):
+                _, schema, channel, message = res
+                w.write_raw(channel.topic, schema.name, message.data, message.log_time, message.publish_time,
+                            message.sequence)  # fmt: skip
                 continue
-            msg = RawImage.FromString(message.data)
-            stamp = msg.timestamp.ToNanoseconds()
             k = counts["frames"]
-            try:
-                if camera is None:
-                    raise FrameError("no_camera_info", "camera/image before any camera/info")
-                frame = decode_frame(msg, camera)
-                obs = pipe.process(frame, camera, stamp, k).obs
-            except FrameError as e:
-                obs = vision_pb2.VisionObservation(accepted=False, reject_reason=f"frame:{e.reason}")
-                obs.header.stamp_ns, obs.header.seq = stamp, k
-            obs.processed_stamp_ns = stamp + int(round(obs.processing_ms * 1e6))
-            w.write("vision/observation", obs, log_time_ns=stamp, sequence=k)
+            w.write("vision/observation", res, log_time_ns=res.header.stamp_ns, sequence=k)
             counts["frames"] += 1
-            counts["accepted" if obs.accepted else "rejected"] += 1
+            counts["accepted" if res.accepted else "rejected"] += 1
             if not quiet and (k % 25 == 0 or k + 1 == total):
                 dt = time.perf_counter() - t0
                 print(f"\rframe {k + 1}/{total or '?'}  {(k + 1) / max(dt, 1e-9):5.1f} frames/s  "
