@@ -8,6 +8,10 @@ encoding, or one that does not decode, is rejected with its reason (an observati
 accepted = false says so) and counted; the service stays up. The observation's header carries
 the frame's capture stamp unchanged, so a vision service on another machine (a client of the
 cart's router: `--mode client -e tcp/CART:7447`) needs no clock synchronisation.
+
+`workers` threads (default 2) each take the newest frame when free, so two frames are
+processed side by side on two cores (torch and OpenCV release the GIL); observations are
+published in the order their frames were taken (services.vision.overlap.InOrder).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from collections.abc import Sequence
 from pydantic import Field
 
 from services.vision import DEFAULT_WEIGHTS
+from services.vision.overlap import InOrder
 from services.vision.pipeline import PipelineParams
 from tiplog.clock import now_ns
 from tiplog.config import ServiceConfig
@@ -39,6 +44,9 @@ class VisionConfig(ServiceConfig):
     pipeline: PipelineParams = Field(default_factory=PipelineParams)
     preview_hz: float = Field(3.0, ge=0.0, le=15.0, description="vision/preview at most this often (0: off)")
     preview_width_px: int = Field(320, ge=64, le=1280)
+    workers: int = Field(
+        2, ge=1, le=8, description="frames processed side by side (each worker takes the newest frame when free)"
+    )
 
 
 class NewestFrame:
@@ -138,7 +146,6 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     ctx.bus.subscribe("camera/info", on_info)
     sub_img = ctx.bus.subscribe("camera/image", lambda m, i: slot.put((m, i)), msg_type=RawImage)
     next_status = time.monotonic() + cfg.status_period_s
-    last_preview = 0.0
 
     def status() -> None:
         log.info(
@@ -147,42 +154,75 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
             sub_img.decode_errors, dict(rejected) or "none",
         )  # fmt: skip
 
-    while not ctx.stop.is_set():
-        item = slot.take(0.1)
+    lock = threading.Lock()  # counts and the preview's clock, shared by the workers
+    order = InOrder()
+    last_preview = [0.0]
+
+    def handle(item, ticket: int) -> None:  # noqa: ANN001  (msg, info) from the slot
+        msg, info = item
+        stamp = msg.timestamp.ToNanoseconds()
+        try:
+            try:
+                if not camera:
+                    raise FrameError("no_camera_info", "no camera/info received yet")
+                cam = camera[0]
+                frame = decode_frame(msg, cam)
+            except FrameError as e:
+                with lock:
+                    rejected[e.reason] += 1
+                    counts["bad_frames"] += 1
+                    n = rejected[e.reason]
+                if n <= 5 or n % 100 == 0:
+                    log.warning("frame at %d rejected (%d so far): %s", stamp, n, e)
+                obs = vision_pb2.VisionObservation(accepted=False, reject_reason=f"frame:{e.reason}")
+                obs.header.stamp_ns = stamp
+                obs.header.frame_id = msg.frame_id
+                obs.header.seq = info.seq
+                obs.processed_stamp_ns = now_ns()
+                order.wait_turn(ticket)
+                pub_obs.put(obs)
+                return
+            res = pipeline.process(frame, cam, stamp, info.seq)
+            res.obs.processed_stamp_ns = now_ns()
+            order.wait_turn(ticket)  # observations leave in the order their frames were taken
+            pub_obs.put(res.obs)
+            now = time.monotonic()
+            with lock:
+                counts["processed"] += 1
+                counts["accepted"] += int(res.obs.accepted)
+                if not res.obs.accepted:
+                    rejected[res.obs.reject_reason] += 1
+                preview = cfg.preview_hz > 0 and now - last_preview[0] >= 1.0 / cfg.preview_hz
+                if preview:
+                    last_preview[0] = now
+            if preview:
+                pub_prev.put(preview_message(frame, res, cam, cfg.preview_width_px))
+        finally:
+            order.done(ticket)
+
+    taking = threading.Lock()  # a frame and its ticket are taken together: tickets follow the frames
+
+    def work() -> None:
+        while not ctx.stop.is_set():
+            with taking:
+                item = slot.take(0.1)
+                ticket = order.ticket() if item is not None else -1
+            if item is None:
+                continue
+            try:
+                handle(item, ticket)
+            except Exception:  # a bug on one frame must not stop the worker
+                log.exception("processing a frame failed")
+
+    workers = [threading.Thread(target=work, name=f"vision-{k}", daemon=True) for k in range(cfg.workers)]
+    for w in workers:
+        w.start()
+    while not ctx.stop.wait(0.1):
         if time.monotonic() >= next_status:
             next_status += cfg.status_period_s
             status()
-        if item is None:
-            continue
-        msg, info = item  # type: ignore[misc]
-        stamp = msg.timestamp.ToNanoseconds()
-        try:
-            if not camera:
-                raise FrameError("no_camera_info", "no camera/info received yet")
-            frame = decode_frame(msg, camera[0])
-        except FrameError as e:
-            rejected[e.reason] += 1
-            counts["bad_frames"] += 1
-            if rejected[e.reason] <= 5 or rejected[e.reason] % 100 == 0:
-                log.warning("frame at %d rejected (%d so far): %s", stamp, rejected[e.reason], e)
-            obs = vision_pb2.VisionObservation(accepted=False, reject_reason=f"frame:{e.reason}")
-            obs.header.stamp_ns = stamp
-            obs.header.frame_id = msg.frame_id
-            obs.header.seq = info.seq
-            obs.processed_stamp_ns = now_ns()
-            pub_obs.put(obs)
-            continue
-        res = pipeline.process(frame, camera[0], stamp, info.seq)
-        res.obs.processed_stamp_ns = now_ns()
-        pub_obs.put(res.obs)
-        counts["processed"] += 1
-        counts["accepted"] += int(res.obs.accepted)
-        if not res.obs.accepted:
-            rejected[res.obs.reject_reason] += 1
-        now = time.monotonic()
-        if cfg.preview_hz > 0 and now - last_preview >= 1.0 / cfg.preview_hz:
-            last_preview = now
-            pub_prev.put(preview_message(frame, res, camera[0], cfg.preview_width_px))
+    for w in workers:
+        w.join(5.0)
     status()
 
 
