@@ -17,9 +17,15 @@ def test_frame_benchmark_runs(recording, tmp_path):
     out = tmp_path / "frame.json"
     assert vision_frame.main(["--recording", str(recording), "--frames", "4", "--json", str(out)]) == 0
     r = json.loads(out.read_text())
-    assert r["frames_timed"] == 4 and r["per_frame"]["total_ms"]["p50"] > 0
+    assert r["frames_timed"] == 4
+    for stage in ("labeler", "network", "total"):
+        assert 0 < r["per_frame"][f"{stage}_ms"]["p50"] <= r["per_frame"][f"{stage}_ms"]["p95"]
+        assert r["per_frame"][f"{stage}_cpu_ms"]["p50"] > 0
+    assert len(r["per_frame_load"]) == 2
     frames = sum(1 for _ in read_messages(recording, ["camera/image"]))
-    assert r["vision_run"]["frames"] == frames and r["vision_run"]["fps"] > 0
+    assert [v["workers"] for v in r["vision_run"]] == [1, 2]
+    for v in r["vision_run"]:
+        assert v["frames"] == frames and v["fps"] > 0 and v["load_before"] >= 0
 
 
 def test_accuracy_benchmark_runs(tmp_path):
