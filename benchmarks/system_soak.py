@@ -62,7 +62,7 @@ def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window
             restarts = {r.service: r.restarts for r in last.services} if last else {}
             assert up.stop() == 0, up.log_tail()
         rates: dict[str, dict] = {}
-        recorder_dropped = 0
+        recorder_dropped = recorder_rejected = 0  # counts of the session, from its status messages
         for rec in up.recordings():
             for t, r in topic_rates(rec).items():
                 prev = rates.get(t, {"count": 0, "seq_gaps": 0, "rate_hz": 0.0})
@@ -72,7 +72,11 @@ def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window
                     "rate_hz": max(prev["rate_hz"], round(float(r.rate_hz), 2)),
                 }
             for m in read_messages(rec, ["recorder/status"]):
-                recorder_dropped = max(recorder_dropped, int(getattr(m.message, "dropped", 0)))
+                counts = m.message.topics
+                recorder_dropped = max(recorder_dropped, sum(c.dropped for c in counts.values()))
+                recorder_rejected = max(
+                    recorder_rejected, sum(c.received for t, c in counts.items() if t.startswith("_rejected/"))
+                )
     rows = {}
     for n, s in samples.items():
         a = np.asarray(s)
@@ -98,6 +102,7 @@ def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window
         "services": rows,
         "restarts": restarts,
         "recorder_dropped": recorder_dropped,
+        "recorder_rejected": recorder_rejected,
         "seq_gaps": {t: r["seq_gaps"] for t, r in rates.items() if r["seq_gaps"]},
         "messages": sum(r["count"] for r in rates.values()),
         "rates_hz": {t: r["rate_hz"] for t, r in sorted(rates.items())},
@@ -130,7 +135,10 @@ def main(argv: list[str] | None = None) -> int:
             f"{s['rss_change_percent']:6.1f}% {s['rss_max_mib']:6.1f} M {r['restarts'].get(n, 0):8d}"
         )
     print("achieved rates [Hz]: " + ", ".join(f"{t} {hz:g}" for t, hz in r["rates_hz"].items()))
-    print(f"drops: recorder {r['recorder_dropped']}, sequence gaps {r['seq_gaps'] or 'none'}")
+    print(
+        f"drops: recorder {r['recorder_dropped']}, rejected by its admission check {r['recorder_rejected']}, "
+        f"sequence gaps {r['seq_gaps'] or 'none'}"
+    )
     if a.json:
         print(json.dumps(r))
     return 0
