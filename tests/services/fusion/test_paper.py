@@ -48,7 +48,7 @@ def test_paper_quick_end_to_end(tmp_path):
     cmd = [sys.executable, "-m", "tiplog.cli", "evaluate", "--paper", "--quick", "--out", str(out), "--jobs", "2"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "generating 7 bench sessions" in r.stdout and "29/29" in r.stdout  # progress lines
+    assert "generating 8 bench sessions" in r.stdout and "31/31" in r.stdout  # progress lines
     rep = json.loads((out / "report.json").read_text())
     assert rep["errors"] == {}, rep["errors"]
     assert rep["wall_time_s"] > 0 and rep["quick"] is True
@@ -56,6 +56,8 @@ def test_paper_quick_end_to_end(tmp_path):
     assert 0 < t["rmse_mm"] < 5 and 0.5 < t["scale"] < 1.5 and t["all"]["ci95"][0] <= t["rmse_mm"]
     assert any(s["held_out"] for s in t["per_step"].values()) or set(t["per_step"]) <= {"5", "10", "20"}
     assert 0 < rot["angle_rmse_deg"] and 0 < rot["relrot_rmse_deg"] and 0 < rot["tip_rmse_mm"]
+    assert rep["rotation_calibrated"]["relrot_rmse_deg"] > 0 and rep["translation_calibrated"]["rmse_mm"] > 0
+    assert (out / "calibration_rotation.yaml").exists()
     for scen in ("sweeps", "teleop"):
         for name in SUBSETS:
             assert rep["subsets"][name]["tip_rmse_mm"][scen] > 0
