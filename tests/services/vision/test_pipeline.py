@@ -45,7 +45,9 @@ def test_rendered_frames_are_accepted_with_the_true_geometry(rendered, camera, s
         _, on_axis, _ = vg.ray_axis_intersection(_v(o.junction_ray), p0, u)
         assert abs((on_axis - J) @ u) < 0.3e-3
         assert np.hypot(o.junction_u_px - truth["junction_px"][0], o.junction_v_px - truth["junction_px"][1]) < 1.5
-        assert o.processing_ms > 0 and set(res.timings_ms) == {"labeler_ms", "network_ms", "total_ms"}
+        assert o.processing_ms > 0 and set(res.timings_ms) == {
+            f"{stage}{kind}" for stage in ("labeler", "network", "total") for kind in ("_ms", "_cpu_ms")
+        }
 
 
 def test_each_gate_threshold_rejects_with_its_reason(rendered, camera, segmenter):
