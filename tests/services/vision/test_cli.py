@@ -50,6 +50,9 @@ def test_run_refuses_to_overwrite_and_names_bad_inputs(recording, tmp_path, caps
     assert main(["vision", "run", str(recording), "--out", str(tmp_path / "o.mcap"), "--weights", str(notmcap)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "checkpoint" in err[0]
+    assert main(["vision", "run", str(recording), "--out", str(tmp_path / "o.mcap"), "--workers", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--workers" in err[0]
     assert not (tmp_path / "o.mcap").exists()
 
 
