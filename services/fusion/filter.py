@@ -123,6 +123,8 @@ class TrackingFilter:
             Q[ITH] = (p.no_imu_rate_rw_dps_rts * DEG) ** 2
         Q[IBR] = self.q_brho
         self._Q = Q  # per second; the gyro-bias entries are set per step (they grow with |w|)
+        self._Q_held = Q.copy()  # while b_rho is held its uncertainty is too: the ToF stays informative
+        self._Q_held[IBR] = 0.0
 
     # ------------------------------------------------------------------ initialisation
     def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
@@ -196,7 +198,7 @@ class TrackingFilter:
         prm = self.prm
         kernels.propagate(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
-            self._Q, prm.gyro_bias_rw_dps_rts * DEG, prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
+            self._Q if self.brho_free(s) else self._Q_held, prm.gyro_bias_rw_dps_rts * DEG, prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
         )  # fmt: skip
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
@@ -229,9 +231,15 @@ class TrackingFilter:
             self.update_gravity(s)
 
     # ------------------------------------------------------------------ updates
-    def _update(self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
-                freeze_brho: bool = False) -> bool:  # fmt: skip
-        status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, freeze_brho)
+    def brho_free(self, s: State) -> bool:
+        """Whether b_rho may move: only while vision gave an independent tip within the offset
+        window. Otherwise no update moves it, not even through its correlation with the tip (a
+        vision axis or RCM update would otherwise carry the ToF's depth error into b_rho and
+        the depth would walk away without a junction in view)."""
+        return self.vision and (s.t_ns - s.last_tip_ns) <= self.prm.tof_offset_window_ms * 1e6
+
+    def _update(self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str) -> bool:
+        status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, not self.brho_free(s))
         if status:
             _bump(s.counts, f"rejected:{name}:innovation")
             return False
@@ -273,10 +281,8 @@ class TrackingFilter:
         if den < 0.05:
             _bump(s.counts, "rejected:tof:grazing")
             return False
-        window = self.prm.tof_offset_window_ms * 1e6
-        free = self.vision and (s.t_ns - s.last_tip_ns) <= window
         y = np.array([range_m - rho])
-        return self._update(s, H, y, np.array([self.tof_var]), self.prm.gate_chi2_1, "tof", freeze_brho=not free)
+        return self._update(s, H, y, np.array([self.tof_var]), self.prm.gate_chi2_1, "tof")
 
     def _clamp_depth(self, s: State) -> None:
         """The tip back to the physical insertion range along the shaft (depth_min/max_m)."""

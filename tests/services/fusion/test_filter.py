@@ -148,6 +148,30 @@ def test_tof_offset_moves_only_after_an_independent_tip():
     assert s.brho > 0.5e-3
 
 
+def test_held_tof_offset_moves_through_no_other_update():
+    """With the junction hidden (no independent tip), b_rho is correlated with the tip by the
+    ToF updates, but neither the RCM, the vision axis, gravity nor time moves it or its variance:
+    before, a vision axis update carried the ToF's error into b_rho and the depth walked away."""
+    f, s, R, p = _run_static(3.0, np.zeros(3))
+    m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
+    rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+    s.last_tip_ns = s.t_ns - 3_000_000_000
+    b0, var0 = s.brho, s.P[15, 15]
+    hidden = dict(_obs(f.c, R, p), junction_visible=False)
+    f_true = f.c.R_tool_imu.T @ R.T @ (-G)
+    for k in range(200):
+        t = s.t_ns + 5_000_000
+        f.on_gyro(s, t, np.zeros(3))
+        f.on_accel(s, t, f_true)
+        f.update_tof(s, rho + 0.004)
+        if k % 7 == 0:
+            assert f.update_vision(s, hidden)
+    assert s.counts["updates:vision_axis"] > 20 and s.counts["updates:tof"] == 200
+    assert abs(float(np.linalg.norm(s.P[0:3, 15]))) > 0.0  # correlated with the tip
+    assert s.brho == b0
+    assert s.P[15, 15] == pytest.approx(var0, rel=1e-9)
+
+
 def _off_heading(f: TrackingFilter, s, angle_deg: float):
     """The state turned about the vertical through the RCM (a heading error after a blackout),
     its covariance left as confident as before."""
