@@ -66,6 +66,7 @@ class StaticParams:
     tof_sigma_mm: float = 30.0  # 3.04 mm pose-locked across poses x sqrt(100 samples per pose)
     junction_min_sin2: float = 0.45
     trocar_gate_mm: float = 0.0  # 0: off (the n_L x n_R line is ill-conditioned; the planes are gated on innovation)
+    depth_reacquire_frames: int = 5  # this many vision depths in a row refused: the depth is reopened; 0: off
 
 
 @dataclass
@@ -76,6 +77,7 @@ class StaticState:
     L: float  # m
     P: np.ndarray  # (7, 7)
     w_imu: np.ndarray = field(default_factory=lambda: np.zeros(3))  # latest gyro sample
+    depth_refused: int = 0  # consecutive vision depths refused on innovation
     counts: dict[str, int] = field(default_factory=dict)
 
     def tip(self, rcm_base_m: np.ndarray) -> np.ndarray:
@@ -196,7 +198,19 @@ class StaticFilter:
         H = np.zeros((1, 7))
         H[0, 6] = 1.0
         Rn = np.array([[(self.p.vision_depth_sigma_mm * 1e-3) ** 2]])
-        self._update(s, np.array([L_vis - s.L]), H, Rn, "vision_depth")
+        if self._update(s, np.array([L_vis - s.L]), H, Rn, "vision_depth"):
+            s.depth_refused = 0
+            return
+        s.depth_refused += 1
+        if 0 < self.p.depth_reacquire_frames <= s.depth_refused:
+            # the depth converged to a wrong value (the ToF's pose-locked error) and now refuses
+            # the vision depth that would correct it: reopen its variance and take this frame
+            s.P[6, :] = 0.0
+            s.P[:, 6] = 0.0
+            s.P[6, 6] = (self.p.init_depth_mm * 1e-3) ** 2
+            s.depth_refused = 0
+            _bump(s.counts, "reacquire:depth")
+            self._update(s, np.array([L_vis - s.L]), H, Rn, "vision_depth")
 
     def tof_range(self, R: np.ndarray, L: float) -> float:
         """Predicted raw range [m] of the ray-plane model at orientation R and depth L."""
