@@ -108,7 +108,8 @@ class TrackingFilter:
         self.q_brho = (p.tof_offset_rw_mm_rts * 1e-3) ** 2
         self.rcm_var = (p.rcm_sigma_mm * 1e-3) ** 2
         self._rcm_r = np.full(2, self.rcm_var)
-        self.tof_var = (p.tof_sigma_mm * 1e-3) ** 2
+        self._tof_r = np.array([(p.tof_sigma_mm * 1e-3) ** 2])
+        self._tof_r_held = np.array([(p.tof_sigma_held_mm * 1e-3) ** 2])
         self.plane_var = (p.vision_plane_sigma_deg * DEG) ** 2
         self.offset_var = (p.vision_offset_sigma_mm * 1e-3) ** 2
         self.ray_var = (p.vision_ray_sigma_mm * 1e-3) ** 2
@@ -282,7 +283,8 @@ class TrackingFilter:
             _bump(s.counts, "rejected:tof:grazing")
             return False
         y = np.array([range_m - rho])
-        return self._update(s, H, y, np.array([self.tof_var]), self.prm.gate_chi2_1, "tof")
+        r = self._tof_r if self.brho_free(s) else self._tof_r_held
+        return self._update(s, H, y, r, self.prm.gate_chi2_1, "tof")
 
     def _clamp_depth(self, s: State) -> None:
         """The tip back to the physical insertion range along the shaft (depth_min/max_m)."""

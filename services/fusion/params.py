@@ -54,7 +54,11 @@ class Params:
     gravity_sigma_deg: float = 1.0
     gravity_sigma_per_excess: float = 20.0  # sigma grows by this many deg per unit | |a|/g - 1 |
     gravity_rate_hz: float = 20.0
-    tof_sigma_mm: float = 20.0  # 3.2 mm white + 3 mm pose-locked, 100 Hz: inflated for correlation
+    # ToF per sample: 3.2 mm white + 3 mm pose-locked at 100 Hz, inflated for the correlation;
+    # weighed less while vision tips also give the depth (the pose-locked part then only adds
+    # error), more while b_rho is held and the ToF is the only depth (blackouts, junction hidden)
+    tof_sigma_mm: float = 45.0
+    tof_sigma_held_mm: float = 20.0
     tof_min_mm: float = 20.0
     tof_max_mm: float = 400.0
     tof_offset_window_ms: float = 2000.0  # b_rho estimated only within this of an independent vision tip

@@ -148,6 +148,21 @@ def test_tof_offset_moves_only_after_an_independent_tip():
     assert s.brho > 0.5e-3
 
 
+def test_tof_weighs_more_while_it_is_the_only_depth():
+    f, s, R, p = _run_static(3.0, np.zeros(3))
+    m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
+    rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+    held = s.copy()
+    held.last_tip_ns = held.t_ns - 3_000_000_000
+    assert f.prm.tof_sigma_held_mm < f.prm.tof_sigma_mm
+    depth = {}
+    for name, st in (("free", s), ("held", held)):
+        L0 = float(st.R[:, 2] @ (st.p - f.rcm))
+        assert f.update_tof(st, rho + 0.004)
+        depth[name] = float(st.R[:, 2] @ (st.p - f.rcm)) - L0
+    assert abs(depth["held"]) > 1.5 * abs(depth["free"]) > 0.0
+
+
 def test_held_tof_offset_moves_through_no_other_update():
     """With the junction hidden (no independent tip), b_rho is correlated with the tip by the
     ToF updates, but neither the RCM, the vision axis, gravity nor time moves it or its variance:
