@@ -109,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         return paper.run(args)
     if args.out or args.quick or args.seed is not None:
         raise UserError("--out, --seed, --quick: only with --paper (use --json for a session's result)")
+    cal = _calibration(args.calibration)  # a bad file that was given is named before what is missing
     if not args.session:
         raise UserError("give a bench session (SESSION.mcap), or --paper for the whole study")
     if not args.json_out:
@@ -116,7 +117,6 @@ def run(args: argparse.Namespace) -> int:
     session = input_mcap(args.session)
     output_file(args.json_out, args.force)
     plots = _plots_dir(args.plots)
-    cal = _calibration(args.calibration)
     jobs = _jobs(args.jobs)
     proto = protocol_of(session)
     if proto in STATIC_PROTOCOLS or proto == "static":

@@ -272,6 +272,9 @@ def test_ctrl_c_during_sim_generate_leaves_no_file(tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # as in a terminal: a suite started in the background (nohup, CI runners) ignores SIGINT,
+        # and the child would inherit that and run to the end
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         # the progress line on stderr says the work has begun (the temporary file exists by then)
