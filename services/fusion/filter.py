@@ -126,6 +126,7 @@ class TrackingFilter:
         self._Q = Q  # per second; the gyro-bias entries are set per step (they grow with |w|)
         self._Q_held = Q.copy()  # while b_rho is held its uncertainty is too: the ToF stays informative
         self._Q_held[IBR] = 0.0
+        self._brho_window_ns = p.tof_offset_window_ms * 1e6
 
     # ------------------------------------------------------------------ initialisation
     def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
@@ -199,7 +200,8 @@ class TrackingFilter:
         prm = self.prm
         kernels.propagate(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
-            self._Q if self.brho_free(s) else self._Q_held, prm.gyro_bias_rw_dps_rts * DEG, prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
+            self._Q if self.brho_free(s) else self._Q_held, prm.gyro_bias_rw_dps_rts * DEG,
+            prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
         )  # fmt: skip
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
@@ -237,7 +239,7 @@ class TrackingFilter:
         window. Otherwise no update moves it, not even through its correlation with the tip (a
         vision axis or RCM update would otherwise carry the ToF's depth error into b_rho and
         the depth would walk away without a junction in view)."""
-        return self.vision and (s.t_ns - s.last_tip_ns) <= self.prm.tof_offset_window_ms * 1e6
+        return self.vision and (s.t_ns - s.last_tip_ns) <= self._brho_window_ns
 
     def _update(self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str) -> bool:
         status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, not self.brho_free(s))
