@@ -11,13 +11,22 @@ from typing import Any
 import numpy as np
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (files only, no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save(fig, path: Path) -> Path:
+    """Lay the figure out, write it as PNG and free it."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    pyplot().close(fig)
+    return path
 
 
 def _box(ax, data: list[np.ndarray], labels: list[str]) -> None:
@@ -28,7 +37,7 @@ def _box(ax, data: list[np.ndarray], labels: list[str]) -> None:
 def protocol_boxplots(res: dict[str, Any], folder: Path, prefix: str = "") -> list[Path]:
     """From `evaluate_static`'s result (with its private `_errors`): translation error per
     step and per axis; rotation relative-rotation and angle error per axis. Returns the files."""
-    plt = _plt()
+    plt = pyplot()
     err = res.get("_errors")
     if not err or len(err["tip_mm"]) == 0:
         return []
@@ -46,11 +55,7 @@ def protocol_boxplots(res: dict[str, Any], folder: Path, prefix: str = "") -> li
         _box(a2, [err["tip_mm"][axes == a] for a in names], names)
         a2.set_xlabel("axis (camera frame)")
         a2.set_ylabel("displacement error [mm]")
-        fig.tight_layout()
-        p = folder / f"{prefix}translation_boxplots.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        out.append(p)
+        out.append(save(fig, folder / f"{prefix}translation_boxplots.png"))
     if "rotation" in res:
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
         _box(a1, [err["relrot_deg"][axes == a] for a in names], names)
@@ -59,18 +64,14 @@ def protocol_boxplots(res: dict[str, Any], folder: Path, prefix: str = "") -> li
         _box(a2, [np.abs(err["angle_deg"][axes == a]) for a in names], names)
         a2.set_ylabel("|rotation-angle error| [deg]")
         a2.set_title(f"angle RMSE {res['rotation']['angle_rmse_deg']:.3f} deg")
-        fig.tight_layout()
-        p = folder / f"{prefix}rotation_boxplots.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        out.append(p)
+        out.append(save(fig, folder / f"{prefix}rotation_boxplots.png"))
     return out
 
 
 def ablation_bars(tables: dict[str, dict[str, Any]], folder: Path, name: str = "ablations.png") -> Path:
     """Bar chart of pooled tip RMSE per variant, one group of bars per session.
     `tables`: session label -> `ablation.ablation_table` result."""
-    plt = _plt()
+    plt = pyplot()
     variants = []
     for t in tables.values():
         for key in ("subsets", "degraded"):
@@ -88,8 +89,4 @@ def ablation_bars(tables: dict[str, dict[str, Any]], folder: Path, name: str = "
     ax.set_yscale("log")
     ax.legend()
     ax.set_title("sensor subsets and degraded vision")
-    fig.tight_layout()
-    p = folder / name
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return p
+    return save(fig, folder / name)

@@ -156,11 +156,9 @@ def evaluate(session: str | Path, estimate: str | Path, topic: str = "fusion/sta
 def plot(result: dict[str, Any], folder: Path) -> list[Path]:
     """Per block: tip path (truth and estimate, the two base axes of largest spread) and the
     error over time, as PNG files in `folder`."""
-    import matplotlib
+    from services.fusion.evaluate_plots import pyplot, save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = []
     for name, t, p_est, p_true, e in result["_series"]:
         if len(t) == 0:
@@ -178,11 +176,7 @@ def plot(result: dict[str, Any], folder: Path) -> list[Path]:
         a2.set_xlabel("time in scored window [s]")
         a2.set_ylabel("tip error [mm]")
         a2.set_title(f"RMSE {np.sqrt(np.mean(e**2)) * 1e3:.2f} mm")
-        fig.tight_layout()
-        path = folder / f"{name}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        out.append(path)
+        out.append(save(fig, folder / f"{name}.png"))
     return out
 
 

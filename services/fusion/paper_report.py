@@ -83,9 +83,7 @@ def _err(res: dict[str, Any], key: str) -> str | None:
 
 
 def translation_md(res: dict[str, Any]) -> list[str]:
-    t = res.get("translation")
-    if not t:
-        return [_err(res, "translation") or "_Not measured._"]
+    t = res["translation"]
     lines = [
         "| Step (mm) | n | RMSE [95% CI] (mm) | Median | 95th pct. | paper RMSE [CI] | paper median | paper p95 |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
@@ -115,23 +113,15 @@ def translation_md(res: dict[str, Any]) -> list[str]:
 
 
 def rotation_md(res: dict[str, Any]) -> list[str]:
-    r = res.get("rotation")
-    if not r:
-        return [_err(res, "rotation") or "_Not measured._"]
+    r = res["rotation"]
     p = PAPER_ROTATION
     held = r.get("relrot_held_out")
-    lines = [
-        "| | Angle (deg) | Rel. rot. (deg) | Tip (mm) | Gain |",
-        "| --- | --- | --- | --- | --- |",
-        f"| bench | {r['angle_rmse_deg']:.3f} | {r['relrot_rmse_deg']:.3f} | {r['tip_rmse_mm']:.2f} | {r['gain']:.4f} |",
-        f"| paper | {p['angle_rmse_deg']:.3f} | {p['relrot_rmse_deg']:.3f} | {p['tip_rmse_mm']:.2f} | {p['gain']:.4f} |",
+    rows = [("bench", r), ("bench, calibrated", res.get("rotation_calibrated")), ("paper", p)]
+    lines = ["| | Angle (deg) | Rel. rot. (deg) | Tip (mm) | Gain |", "| --- | --- | --- | --- | --- |"] + [
+        f"| {label} | {x['angle_rmse_deg']:.3f} | {x['relrot_rmse_deg']:.3f} | {x['tip_rmse_mm']:.2f} | {x['gain']:.4f} |"
+        for label, x in rows
+        if x
     ]
-    rc = res.get("rotation_calibrated")
-    if rc:
-        lines.insert(
-            3,
-            f"| bench, calibrated | {rc['angle_rmse_deg']:.3f} | {rc['relrot_rmse_deg']:.3f} | {rc['tip_rmse_mm']:.2f} | {rc['gain']:.4f} |",
-        )
     if held:
         lines.append(f"\nHeld-out repetitions 4-10: relative rotation {held['rmse']:.3f} deg RMS ({held['n']} trials).")
     per = ", ".join(f"{a} {v['relrot']['rmse']:.3f}" for a, v in r["per_axis"].items())
@@ -145,9 +135,7 @@ def rotation_md(res: dict[str, Any]) -> list[str]:
 
 
 def stability_md(res: dict[str, Any]) -> list[str]:
-    s = res.get("stability")
-    if not s:
-        return [_err(res, "stability") or "_Not measured._"]
+    s = res["stability"]
     lines = [
         "| Pose | holds | Accel. tilt (deg) | Raw ToF (mm) | Robot tip (mm) | Fusion jitter (mm) | Fusion drift (mm) | paper pose | paper tilt | paper ToF | paper robot |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
@@ -181,9 +169,7 @@ def stability_md(res: dict[str, Any]) -> list[str]:
 
 
 def latency_md(res: dict[str, Any]) -> list[str]:
-    t = res.get("latency")
-    if not t:
-        return [_err(res, "latency") or "_Not measured._"]
+    t = res["latency"]
     streams = [s for s in PAPER_LATENCY if s in t]
     lines = ["| Channel | " + " | ".join(f"{s} (paper)" for s in streams) + " |", "| --- |" + " --- |" * len(streams)]
     for ch in ("depth", "tilt", "roll"):
@@ -247,15 +233,11 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
         "| Vision | Programmed block mean (pooled) | Teleoperated block mean (pooled) | paper programmed | paper teleoperated |",
         "| --- | --- | --- | --- | --- |",
     ]
-    full = sub.get("full", {})
-    pf = PAPER_DEGRADED_FULL_BLOCK_MEAN
-    lines.append(
-        f"| full | {cell(full, 'sweeps', 'block_mean_mm')} ({cell(full, 'sweeps')}) | "
-        f"{cell(full, 'teleop', 'block_mean_mm')} ({cell(full, 'teleop')}) | {pf[0]} | {pf[1]} |"
-    )
+    rows = [("full", sub.get("full", {}), PAPER_DEGRADED_FULL_BLOCK_MEAN, "")]
     for name, d in deg.items():
-        p = PAPER_JUNCTION_HIDDEN if name == "junction_hidden" else PAPER_DEGRADED_MAX
-        pre = "" if name == "junction_hidden" else "≤ "
+        hidden = name == "junction_hidden"
+        rows.append((name, d, PAPER_JUNCTION_HIDDEN if hidden else PAPER_DEGRADED_MAX, "" if hidden else "≤ "))
+    for name, d, p, pre in rows:
         lines.append(
             f"| {name} | {cell(d, 'sweeps', 'block_mean_mm')} ({cell(d, 'sweeps')}) | "
             f"{cell(d, 'teleop', 'block_mean_mm')} ({cell(d, 'teleop')}) | {pre}{p[0]} | {pre}{p[1]} |"
@@ -268,9 +250,7 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
 
 
 def magnetometer_md(res: dict[str, Any]) -> list[str]:
-    m = res.get("magnetometer")
-    if not m:
-        return [_err(res, "magnetometer") or "_Not measured._"]
+    m = res["magnetometer"]
     r, s = m.get("rotation", {}), m.get("static")
     p = PAPER_MAGNETOMETER
     lines = [
@@ -305,19 +285,21 @@ def markdown(res: dict[str, Any]) -> str:
         "",
         "Sessions: " + ", ".join(f"{k} {v['duration_s']:.0f} s" for k, v in res["sessions"].items()) + ".",
     ]
+    # (title, writer, the result it needs: without it the section says why it is missing)
     sections = [
-        ("Targets", targets_md),
-        ("Static stability (Table: static noise)", stability_md),
-        ("Observation latency (Table: latency)", latency_md),
-        ("Translation, 300 trials in the paper (Table: translation)", translation_md),
-        ("Rotation, 180 trials in the paper (Table: rotation)", rotation_md),
-        ("Magnetometer study (Preliminary Study)", magnetometer_md),
-        ("Dynamic tip error (Table: dynamic, a)", dynamic_md),
-        ("Sensor subsets and degraded vision (Table: dynamic, b; text)", ablation_md),
+        ("Targets", targets_md, None),
+        ("Static stability (Table: static noise)", stability_md, "stability"),
+        ("Observation latency (Table: latency)", latency_md, "latency"),
+        ("Translation, 300 trials in the paper (Table: translation)", translation_md, "translation"),
+        ("Rotation, 180 trials in the paper (Table: rotation)", rotation_md, "rotation"),
+        ("Magnetometer study (Preliminary Study)", magnetometer_md, "magnetometer"),
+        ("Dynamic tip error (Table: dynamic, a)", dynamic_md, None),
+        ("Sensor subsets and degraded vision (Table: dynamic, b; text)", ablation_md, None),
     ]
     out = head
-    for title, fn in sections:
-        out += ["", f"## {title}", "", *fn(res)]
+    for title, fn, key in sections:
+        body = fn(res) if key is None or res.get(key) else [_err(res, key) or "_Not measured._"]
+        out += ["", f"## {title}", "", *body]
     if res.get("errors"):
         out += ["", "## Steps that failed", ""] + [f"- {k}: {v}" for k, v in res["errors"].items()]
     if res.get("plots"):
