@@ -94,9 +94,12 @@ def test_estimate_identical_without_truth(tmp_path, session, estimate):
 
 
 def test_evaluate_keys_and_figures_follow_the_error(tmp_path, session, estimate):
-    res = tmp_path / "r.json"
-    assert tiplog_main(["evaluate", str(session), "--estimate", str(estimate), "--json", str(res)]) == 0
+    res, plots = tmp_path / "r.json", tmp_path / "plots"
+    args = ["evaluate", str(session), "--estimate", str(estimate), "--json", str(res), "--plots", str(plots)]
+    assert tiplog_main(args) == 0
     r = json.loads(res.read_text())
+    assert sorted(f.name for f in plots.iterdir()) == sorted(f"{b['name']}.png" for b in r["blocks"])
+    assert all(f.stat().st_size > 5_000 for f in plots.iterdir())
     keys = ("tip_rmse_mm", "tip_median_mm", "tip_p95_mm", "radial_rmse_mm", "tangential_rmse_mm")
     for k in keys:
         assert np.isfinite(r["pooled"][k])
