@@ -16,6 +16,9 @@ published in the order their frames were taken (services.vision.overlap.InOrder)
 
 from __future__ import annotations
 
+import logging
+import os
+import sys
 import threading
 import time
 from collections import Counter
@@ -121,6 +124,8 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     loader.start()
     while not loaded:
         if ctx.stop.wait(0.05):
+            log.info("stopped while loading the network")
+            _abandoned.append(loader)
             return
     if isinstance(loaded[0], SystemExit):
         raise loaded[0]
@@ -226,8 +231,21 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     status()
 
 
+# A loader thread still inside torch's import or checkpoint load when the service stops. It
+# cannot be cancelled, and letting the interpreter finalise around it aborts the process from
+# C++ ("terminate called without an active exception"): `main` ends the process without
+# finalising instead, once the bus is closed and the logs are flushed.
+_abandoned: list[threading.Thread] = []
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     try:
-        return run_service(NAME, VisionConfig, body, argv, description=__doc__)
+        rc = run_service(NAME, VisionConfig, body, argv, description=__doc__)
     except SystemExit as e:
-        return int(e.code or 0)
+        rc = int(e.code or 0)
+    if any(t.is_alive() for t in _abandoned):
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
+    return rc

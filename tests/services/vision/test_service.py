@@ -128,3 +128,26 @@ def test_frames_in_observations_out(mode, endpoint, rendered, camera):
     assert "bad_size" in last and "bad_encoding" in last
     assert frames_in == processed + dropped + bad
     assert dropped >= len(burst) - len(processed_burst)
+
+
+def test_a_signal_while_the_network_loads_stops_cleanly(endpoint):
+    """torch's import and the checkpoint load take seconds on a thread that cannot be
+    cancelled; a signal meanwhile still ends the service at once with status 0, never with a
+    C++ abort from finalising around that thread."""
+    prefix = f"vl{abs(hash(endpoint)) % 10**6}/"
+    test_cfg = BusConfig(mode="peer", listen=[endpoint], connect=[], prefix=prefix)
+    with Bus(test_cfg) as bus:
+        for k in range(5):
+            up = threading.Event()
+            bus.watch_alive(lambda name, alive, up=up: name == "vision" and alive and up.set())
+            proc = _start(["--connect", endpoint, "--prefix", prefix])
+            try:
+                assert up.wait(30), "vision never joined the bus"
+                proc.send_signal(signal.SIGTERM if k % 2 else signal.SIGINT)
+                _, err = proc.communicate(timeout=10)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+            assert proc.returncode == 0, err[-2000:]
+            assert "stopped while loading the network" in err
+            assert "terminate called" not in err
