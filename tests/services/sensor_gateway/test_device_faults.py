@@ -16,7 +16,7 @@ import pytest
 
 from tests.conftest import ROOT
 from tiplog.bus import Bus
-from tiplog.clock import NS_PER_S
+from tiplog.clock import NS_PER_S, now_ns
 from tiplog.devproto.emulator import DeviceEmulator, FaultConfig
 from tiplog.devproto.synthetic import synthetic_packets
 from tiplog.v1 import device_pb2
@@ -97,13 +97,21 @@ def test_every_intact_frame_once_in_order_through_faults_and_replugs(bus_pair_co
                     assert rx.wait(lambda: any(s.state == device_pb2.DEVICE_STATE_STALLED for s in rx.statuses), 10), (
                         "no STALLED status while the device was silent"
                     )
+                t_unplug = now_ns()
                 assert emu.unplug(drain_timeout_s=5.0) == 0
                 for pkt in itertools.islice(packets, 200):  # written while unplugged: never arrive
                     emu.send(pkt)
                 if cycle == 3:  # a long absence: the back-off reaches its cap before the replug
                     f0 = rx.statuses[-1].faults["open_failures"]
                     assert rx.wait(lambda f0=f0: rx.statuses[-1].faults["open_failures"] >= f0 + 6, 10)
-            assert rx.wait(lambda: any(s.state == device_pb2.DEVICE_STATE_DISCONNECTED for s in rx.statuses[-3:]), 10)
+            # The status of the last unplug, not an earlier one still among the latest few.
+            assert rx.wait(
+                lambda: any(
+                    s.state == device_pb2.DEVICE_STATE_DISCONNECTED and s.header.stamp_ns >= t_unplug
+                    for s in rx.statuses
+                ),
+                10,
+            ), "no DISCONNECTED status after the last unplug"
             last_status = rx.statuses[-1]
         finally:
             proc.send_signal(signal.SIGINT)
