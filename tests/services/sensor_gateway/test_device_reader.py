@@ -24,6 +24,14 @@ def wait_for(predicate, timeout_s: float = 10.0) -> bool:
     return True
 
 
+def wait_matched(reader: DeviceReader) -> bool:
+    """Both tested streams' publishers see the subscriber: nothing sent before is lost."""
+    return all(
+        wait_for(lambda kind=kind: reader._pubs[kind]._pub.matching_status.matching, 30)
+        for kind in (PacketType.GYRO, PacketType.TOF)
+    )
+
+
 def test_reader_over_a_socket_url(bus_pair_configs):
     listen_cfg, connect_cfg = bus_pair_configs
     server = socket.create_server(("127.0.0.1", 0))
@@ -36,7 +44,7 @@ def test_reader_over_a_socket_url(bus_pair_configs):
         status = GatewayStatus(f"socket://127.0.0.1:{port}", statuses.append)
         cfg = DeviceLinkConfig(port=f"socket://127.0.0.1:{port}", reconnect_initial_s=0.02, reconnect_max_s=0.1)
         reader = DeviceReader(cfg, pub_bus, status)
-        assert wait_for(lambda: reader._pubs[PacketType.GYRO]._pub.matching_status.matching)
+        assert wait_matched(reader)
         reader.start()
         try:
             conn, _ = server.accept()
@@ -90,7 +98,7 @@ def test_a_burst_read_at_once_keeps_the_device_spacing(bus_pair_configs):
         sub_bus.subscribe("device/gyro", lambda m, i: gyros.append(m))
         sub_bus.subscribe("device/tof", lambda m, i: tofs.append(m))
         reader = DeviceReader(DeviceLinkConfig(port="loop://"), pub_bus, GatewayStatus("loop://", lambda m: None))
-        assert wait_for(lambda: reader._pubs[PacketType.GYRO]._pub.matching_status.matching)
+        assert wait_matched(reader)
 
         def burst(first: int, n: int) -> bytes:
             frames = [
@@ -103,7 +111,7 @@ def test_a_burst_read_at_once_keeps_the_device_spacing(bus_pair_configs):
         T = 10_000_000_000
         assert reader._handle(burst(0, 4), T) == 5
         assert reader._handle(burst(4, 3), T + 1_000_000) == 4  # next read only 1 ms later
-        assert wait_for(lambda: len(gyros) == 7 and len(tofs) == 2)
+        assert wait_for(lambda: len(gyros) == 7 and len(tofs) == 2, 30), (len(gyros), len(tofs))
     stamps = [m.header.stamp_ns for m in gyros]
     assert stamps[:4] == [T - 15_000_000, T - 10_000_000, T - 5_000_000, T]
     # the second read cannot go back before the first one's newest: 1 ns steps up to its arrival
