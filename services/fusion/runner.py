@@ -38,11 +38,16 @@ def _v3(v: Any) -> np.ndarray:
     return np.array([v.x, v.y, v.z], dtype=float)
 
 
+def _add(total: dict, more: dict) -> None:
+    for k, v in more.items():
+        total[k] = total.get(k, 0) + v
+
+
 class _Track:
     """What a rewind restores: the filter state (None before initialisation) and the latest
     accelerometer sample (for initialising roll)."""
 
-    __slots__ = ("state", "f_last", "resets", "reset_reasons", "neutral_u", "reacquired")
+    __slots__ = ("state", "f_last", "resets", "reset_reasons", "neutral_u", "carried", "carried_nis")
 
     def __init__(self) -> None:
         self.state: State | None = None
@@ -50,7 +55,9 @@ class _Track:
         self.resets = 0
         self.reset_reasons: dict[str, int] = {}
         self.neutral_u: np.ndarray | None = None
-        self.reacquired = 0  # vision re-acquisitions of states since reset (theirs are in their counts)
+        # update counts and NIS sums of the states a reset discarded: diagnostics cover the run
+        self.carried: dict[str, int] = {}
+        self.carried_nis: dict[str, float] = {}
 
     def copy(self) -> _Track:
         t = _Track.__new__(_Track)
@@ -59,7 +66,8 @@ class _Track:
         t.resets = self.resets
         t.reset_reasons = dict(self.reset_reasons)
         t.neutral_u = self.neutral_u
-        t.reacquired = self.reacquired
+        t.carried = dict(self.carried)
+        t.carried_nis = dict(self.carried_nis)
         return t
 
 
@@ -196,16 +204,16 @@ class FusionRunner:
         return make_sample(s, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
 
     def diagnostics(self) -> dict:
-        s = self._track.state
-        counts = s.counts if s is not None else {}
-        nis_sum = s.nis if s is not None else {}
+        tr = self._track
+        s = tr.state
+        counts, nis_sum = dict(tr.carried), dict(tr.carried_nis)
+        if s is not None:
+            _add(counts, s.counts)
+            _add(nis_sum, s.nis)
         updates = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("updates:")}
         rejected = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("rejected:")}
         rejected.update(self.dropped)
         nis = {k: v / max(updates.get(k, 0), 1) for k, v in nis_sum.items()}
-        n_reacq = updates.get("reacquire", 0) + self._track.reacquired
-        if n_reacq:
-            updates["reacquire"] = n_reacq  # over the whole run, across resets
         return {
             "updates": updates,
             "rejected": rejected,
@@ -292,7 +300,8 @@ class FusionRunner:
                 f.on_gyro(s, t, payload)
                 why = f.diverged(s)
                 if why is not None:
-                    tr.reacquired += int(s.counts.get("updates:reacquire", 0))
+                    _add(tr.carried, s.counts)
+                    _add(tr.carried_nis, s.nis)
                     tr.state = None
                     tr.resets += 1
                     tr.reset_reasons[why] = tr.reset_reasons.get(why, 0) + 1
