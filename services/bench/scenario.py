@@ -169,6 +169,11 @@ class VisionConfig(_M):
     junction_depth_pose_mm: float = F(0.36, ge=0.0, le=50.0, description="with white: 0.47 mm held out")
     junction_lateral_px: float = F(0.5, ge=0.0, le=50.0)
     junction_hidden_prob: float = F(0.05, ge=0.0, le=1.0)
+    # Gross junction errors that pass the consistency gate: the pixel tier's labeler and network
+    # agreeing on a wrong end of the shaft (benchmarks/vision_accuracy.py, teleop seeds 1-3: 1
+    # frame in 522 with a junction, 22 mm off). The paper's error sizes have no such tail.
+    junction_outlier_prob: float = F(0.002, ge=0.0, le=1.0, description="per frame with a junction")
+    junction_outlier_mm: Vec2 = F((5.0, 25.0), description="range of a gross junction depth error")
     junction_min_sin2: float = F(0.45, ge=0.0, le=1.0, description="reject when 1-(d.u)^2 is below")
     gate_iou_min: float = F(0.75, ge=0.0, le=1.0)
     gate_line_angle_deg: float = F(0.5, gt=0.0, le=10.0)

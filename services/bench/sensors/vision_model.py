@@ -54,22 +54,18 @@ class VisionFrames:
         return len(self.t_true_ns)
 
 
-# Gross junction errors that pass the consistency gate: the pixel tier's labeler and network agreeing
-# on a wrong end of the shaft (benchmarks/vision_accuracy.py, teleop seeds 1-3: 1 frame in 522 with
-# a junction, 22 mm off). The paper's error sizes above have no such tail. Drawn from a child
-# generator, so that every other draw of a seed is what it was before this term existed.
-JUNCTION_OUTLIER_PROB = 0.002
-JUNCTION_OUTLIER_MM = (5.0, 25.0)
-
-
-def junction_outliers(rng: np.random.Generator, n: int, enabled: bool = True) -> np.ndarray:
-    """Per-frame junction depth outliers [m] along the axis (mostly zero); none when not enabled
-    (an error-free configuration: wrong_seg_prob = 0)."""
-    if not enabled or JUNCTION_OUTLIER_PROB <= 0:
+def junction_outliers(
+    rng: np.random.Generator, n: int, prob: float, range_mm: tuple[float, float], enabled: bool = True
+) -> np.ndarray:
+    """Per-frame gross junction depth errors [m] along the axis (mostly zero), each frame with
+    probability `prob`, of a size uniform in `range_mm` and either sign; none when not enabled
+    (an error-free configuration: wrong_seg_prob = 0). Drawn from a child generator, so every
+    other draw of a seed is what it was before this term existed."""
+    if not enabled or prob <= 0:
         return np.zeros(n)
     child = rng.spawn(1)[0]
-    hit = child.random(n) < JUNCTION_OUTLIER_PROB
-    mag = child.uniform(*JUNCTION_OUTLIER_MM, n) * child.choice([-1.0, 1.0], n) * 1e-3
+    hit = child.random(n) < prob
+    mag = child.uniform(*range_mm, n) * child.choice([-1.0, 1.0], n) * 1e-3
     return np.where(hit, mag, 0.0)
 
 
@@ -147,7 +143,7 @@ def simulate_vision(kin: Kinematics, sc: Scenario, const: BenchConstants, rng: n
     # junction: depth error along the axis (white + pose-locked), lateral pixel noise
     jfld = PoseField(rng, 1, v.junction_depth_pose_mm * 1e-3, np.radians(v.pose_corr_deg), v.pose_corr_m)
     dj = pose_field_at(jfld, kin, t)[:, 0] + rng.normal(size=n) * v.junction_depth_white_mm * 1e-3
-    j_out = junction_outliers(rng, n, v.wrong_seg_prob > 0)
+    j_out = junction_outliers(rng, n, v.junction_outlier_prob, v.junction_outlier_mm, v.wrong_seg_prob > 0)
     J_obs = J_c + (dj + j_out)[:, None] * u_c
     uv = _project_undist(sc, J_obs) + rng.normal(size=(n, 2)) * v.junction_lateral_px
     ray = np.stack([(uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy, np.ones(n)], -1)

@@ -111,3 +111,24 @@ def test_stamps_and_processing_time():
     assert lat.mean() == pytest.approx(sc.camera.latency_ms, abs=0.2)
     assert np.mean(vf.processing_ms) == pytest.approx(113.0, abs=3.0)
     assert np.all(vf.processed_ns > vf.capture_ns)
+
+
+def test_gross_junction_errors_follow_the_scenario():
+    """The rare gross junction depth errors (labeler and network agreeing on a wrong end) come
+    at the scenario's rate and within its size range; everything else stays exact."""
+    over = EXACT | {
+        "vision.wrong_seg_prob": 1e-12,  # error model on, no wrong lines in practice
+        "vision.junction_outlier_prob": 0.2,
+        "vision.junction_outlier_mm": (10.0, 12.0),
+    }
+    sc, const, kin, vf = _run(over, angle=lambda t: 0.05 * np.sin(t))
+    u, tip, _ = _truth_cam(const, kin, vf.t_true_ns)
+    j = vf.junction_visible & (np.linalg.norm(vf.n_left, axis=1) > 0)
+    p0 = vg.closest_axis_point(tip, u)
+    s, _, _ = vg.ray_axis_intersection(vf.junction_ray[j], p0[j], u[j])
+    err_mm = np.abs((((tip - p0) * u).sum(1)[j] - s) * 1e3 - sc.instrument.junction_proximal_m * 1e3)
+    gross = err_mm > 1e-6
+    assert gross.mean() == pytest.approx(0.2, abs=0.05), gross.mean()
+    assert np.all((err_mm[gross] > 10.0 - 1e-6) & (err_mm[gross] < 12.0 + 1e-6))
+    _, _, _, vf0 = _run(over | {"vision.junction_outlier_prob": 0.0}, angle=lambda t: 0.05 * np.sin(t))
+    np.testing.assert_array_equal(vf0.junction_visible, vf.junction_visible)  # other draws unchanged
