@@ -17,7 +17,7 @@ from __future__ import annotations
 import bisect
 import heapq
 import math
-from collections import deque
+from collections import Counter, deque
 from typing import Any
 
 import numpy as np
@@ -38,11 +38,6 @@ def _v3(v: Any) -> np.ndarray:
     return np.array([v.x, v.y, v.z], dtype=float)
 
 
-def _add(total: dict, more: dict) -> None:
-    for k, v in more.items():
-        total[k] = total.get(k, 0) + v
-
-
 class _Track:
     """What a rewind restores: the filter state (None before initialisation) and the latest
     accelerometer sample (for initialising roll)."""
@@ -56,8 +51,8 @@ class _Track:
         self.reset_reasons: dict[str, int] = {}
         self.neutral_u: np.ndarray | None = None
         # update counts and NIS sums of the states a reset discarded: diagnostics cover the run
-        self.carried: dict[str, int] = {}
-        self.carried_nis: dict[str, float] = {}
+        self.carried: Counter[str] = Counter()
+        self.carried_nis: Counter[str] = Counter()
 
     def copy(self) -> _Track:
         t = _Track.__new__(_Track)
@@ -66,8 +61,8 @@ class _Track:
         t.resets = self.resets
         t.reset_reasons = dict(self.reset_reasons)
         t.neutral_u = self.neutral_u
-        t.carried = dict(self.carried)
-        t.carried_nis = dict(self.carried_nis)
+        t.carried = self.carried.copy()
+        t.carried_nis = self.carried_nis.copy()
         return t
 
 
@@ -206,10 +201,10 @@ class FusionRunner:
     def diagnostics(self) -> dict:
         tr = self._track
         s = tr.state
-        counts, nis_sum = dict(tr.carried), dict(tr.carried_nis)
+        counts, nis_sum = tr.carried.copy(), tr.carried_nis.copy()
         if s is not None:
-            _add(counts, s.counts)
-            _add(nis_sum, s.nis)
+            counts.update(s.counts)  # Counter.update adds
+            nis_sum.update(s.nis)
         updates = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("updates:")}
         rejected = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("rejected:")}
         rejected.update(self.dropped)
@@ -300,8 +295,8 @@ class FusionRunner:
                 f.on_gyro(s, t, payload)
                 why = f.diverged(s)
                 if why is not None:
-                    _add(tr.carried, s.counts)
-                    _add(tr.carried_nis, s.nis)
+                    tr.carried.update(s.counts)
+                    tr.carried_nis.update(s.nis)
                     tr.state = None
                     tr.resets += 1
                     tr.reset_reasons[why] = tr.reset_reasons.get(why, 0) + 1
