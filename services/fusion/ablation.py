@@ -44,11 +44,9 @@ SUBSETS = {"full": "imu,tof,vision", "vision_only": "vision", "imu_tof": "imu,to
 DEGRADED = ("third", "noise5", "blackout1", "blackout3", "blackout10", "junction_hidden")
 BLACKOUT_COUNT = 16
 JUNCTION_INIT_NS = 1_000_000_000  # junction_hidden keeps the junction this long, to start from
-# the recording's per-frame (white) vision noise, from the bench's defaults: plane 0.06 deg,
-# junction depth 0.30 mm; five times in total needs sqrt(25 - 1) times that added
+# the recording's per-frame (white) tangent-plane noise, from the bench's defaults; five times
+# in total needs sqrt(25 - 1) times that added
 PLANE_WHITE_DEG = 0.06
-JUNCTION_WHITE_M = 0.30e-3
-JUNCTION_RANGE_M = 0.09  # typical camera-to-junction range: the junction noise as a ray angle
 
 
 def blackout_spans(
@@ -68,9 +66,9 @@ def blackout_spans(
     return spans
 
 
-def _add_noise(msg: Any, rng: np.random.Generator, junction: bool = False) -> Any:
+def _add_noise(msg: Any, rng: np.random.Generator) -> Any:
     """The tangent planes' white noise made five times the recording's (the paper "multiplied
-    the vision axis noise fivefold"); with `junction`, the junction ray's as well."""
+    the vision axis noise fivefold"); the junction ray is left as recorded."""
     msg = copy.deepcopy(msg)
     k = np.sqrt(24.0)
     for f in ("n_left", "n_right"):
@@ -80,11 +78,6 @@ def _add_noise(msg: Any, rng: np.random.Generator, junction: bool = False) -> An
         a, b = rng.normal(size=2) * np.radians(PLANE_WHITE_DEG) * k
         n2 = vg.tilt_normal(n, a, b, u / np.linalg.norm(u))
         v.x, v.y, v.z = (float(c) for c in n2)
-    if junction:
-        r = msg.junction_ray
-        d = np.array([r.x, r.y, r.z]) + rng.normal(size=3) * JUNCTION_WHITE_M * k / JUNCTION_RANGE_M
-        d /= np.linalg.norm(d)
-        r.x, r.y, r.z = (float(c) for c in d)
     return msg
 
 
