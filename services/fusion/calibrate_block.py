@@ -2,7 +2,8 @@
 
 Starts from the prior constants (a calibration file or the recording's as-calibrated
 metadata), replaces what the block determines (RCM, IMU mounting, ToF ray-plane model,
-vision tip offset, written into junction_proximal_m; accelerometer bias/scale/misalignment go
+the camera's pose in the base refined on the shaft it sees, vision tip offset, written into
+junction_proximal_m; accelerometer bias/scale/misalignment go
 to the report, the calibration format has no field for them yet) and returns the new `Calibration` with a report of every
 fit's residuals, held-out residuals and posterior SDs.
 """
@@ -18,6 +19,7 @@ import numpy as np
 from services.fusion.calibrate_data import CalibrationData
 from tiplog.calibration import Calibration
 from tiplog.calibration_fits import DegenerateDataError, require
+from tiplog.calibration_fits.camera import CameraFrames, fit_camera
 from tiplog.calibration_fits.imu import combine_mounts, fit_accel, fit_mount_accel, fit_mount_gyro, rotation_error_deg
 from tiplog.calibration_fits.rcm import fit_rcm
 from tiplog.calibration_fits.tof import TofModel, fit_tof
@@ -26,7 +28,7 @@ from tiplog.calibration_fits.windows import StaticWindows, interp_pose, static_w
 from tiplog.geometry import so3_log
 
 log = logging.getLogger(__name__)
-BLOCK_FITS = ("rcm", "mounting", "accel", "tof", "vision_offset")
+BLOCK_FITS = ("rcm", "mounting", "accel", "tof", "camera", "vision_offset")
 
 
 def _r(x: float, nd: int = 4) -> float:
@@ -79,6 +81,27 @@ def mounting(data: CalibrationData, win: StaticWindows, prior: Calibration, repo
         "gyro_bias_at_rest_dps": [_r(x, 5) for x in np.degrees(np.median(b_rest, 0))],
     }
     return m.R_tool_imu
+
+
+def camera_frames(data: CalibrationData, win: StaticWindows, latency_ms: float) -> CameraFrames:
+    """The accepted vision frames inside the static poses, with the robot's pose at each."""
+    v = data.vision
+    ok = v["accepted"].astype(bool) if len(v["capture_ns"]) else np.zeros(0, bool)
+    vi = window_samples(win, v["capture_ns"], latency_ms, ok)
+    idx = np.concatenate([np.asarray(i, int) for i in vi]) if vi else np.zeros(0, int)
+    pose = np.concatenate([np.full(len(i), k) for k, i in enumerate(vi)]) if vi else np.zeros(0, int)
+    R, p = interp_pose(
+        v["capture_ns"][idx] - int(latency_ms * 1e6), data.robot_t_ns, data.R_base_tool, data.p_tip_base_m
+    )
+    return CameraFrames(
+        pose=pose,
+        R_base_tool=R,
+        p_tip_base_m=p,
+        n_left=v["n_left"][idx],
+        n_right=v["n_right"][idx],
+        junction_ray=v["junction_ray"][idx],
+        junction_visible=v["junction_visible"][idx].astype(bool),
+    )
 
 
 def calibrate_block(
@@ -139,6 +162,30 @@ def calibrate_block(
             "sd": {k: _r(v) for k, v in t.sd.items()},
             "poses": t.poses,
         }
+    if "camera" in fits:
+        cam = fit_camera(
+            camera_frames(data, win, prior.latency_ms.get("camera", 0.0)),
+            prior.T_base_camera,
+            prior.junction_proximal_m - prior.vision_tip_offset_m,
+            prior.shaft_radius_m,
+        )
+        # the pose and the junction-to-tip distance are fitted together and go together; the
+        # vision offset fit below, if run, re-fits the distance through the new pose
+        new.update(
+            T_base_camera=cam.T_base_camera, junction_proximal_m=cam.junction_proximal_m, vision_tip_offset_m=0.0
+        )
+        report["camera"] = {
+            "rotation_change_deg": _r(cam.rotation_change_deg),
+            "position_change_mm": _r(cam.position_change_mm),
+            "residual_mm": {k: _r(v) for k, v in cam.residual_mm.items()},
+            "prior_residual_mm": {k: _r(v) for k, v in cam.prior_residual_mm.items()},
+            "heldout_mm": {k: _r(v) for k, v in cam.heldout_mm.items()},
+            "sd": {k: [_r(x) for x in v] for k, v in cam.sd.items()},
+            "frames": cam.frames,
+            "dropped": cam.dropped,
+            "poses": cam.poses,
+        }
+    T_base_camera = new.get("T_base_camera", prior.T_base_camera)
     if "vision_offset" in fits:
         v = data.vision
         lat = prior.latency_ms.get("camera", 0.0)
@@ -152,9 +199,7 @@ def calibrate_block(
             R, p = interp_pose(
                 v["capture_ns"][idx] - int(lat * 1e6), data.robot_t_ns, data.R_base_tool, data.p_tip_base_m
             )
-            per_pose.append(
-                junction_offsets_m(v["junction_ray"][idx], R, p, prior.T_base_camera, prior.junction_proximal_m)
-            )
+            per_pose.append(junction_offsets_m(v["junction_ray"][idx], R, p, T_base_camera, prior.junction_proximal_m))
         vo = fit_vision_offset(per_pose)
         # written as the junction-to-tip distance itself with a zero offset, so that a reader
         # computing the tip as J + (junction_proximal_m -/+ vision_tip_offset_m) u gets it right

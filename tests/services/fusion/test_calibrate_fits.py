@@ -3,15 +3,19 @@ cannot determine them."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from tiplog import vision_geometry as vg
 from tiplog.calibration_fits import DegenerateDataError
+from tiplog.calibration_fits.camera import CameraFrames, fit_camera
 from tiplog.calibration_fits.imu import G_MPS2, fit_accel, fit_mount_accel, fit_mount_gyro, rotation_error_deg
 from tiplog.calibration_fits.rcm import fit_rcm
 from tiplog.calibration_fits.tof import TofModel, fit_tof
 from tiplog.calibration_fits.vision_offset import fit_vision_offset
-from tiplog.geometry import so3_exp
+from tiplog.geometry import so3_exp, so3_log
 
 
 def _poses(rng, k, tilt_deg=8.0, roll_deg=40.0):
@@ -112,3 +116,64 @@ def test_vision_offset_mean_of_pose_medians_and_refusal():
     assert abs(res.vision_tip_offset_m + 0.0005) < 2e-4
     with pytest.raises(DegenerateDataError, match="at least 3"):
         fit_vision_offset(per_pose[:2] + [np.array([np.nan] * 5)])
+
+
+def _camera_frames(rng, k=10, per_pose=20, L_j=0.004, rho=0.0025, wrong=0):
+    """Exact silhouettes and junction rays of k static poses seen by a camera 250 mm from the
+    tip; `wrong` frames get a wrong line (one normal tilted 4 deg)."""
+    R, p, _ = _poses(rng, k)
+    target = p.mean(0)
+    c = target + np.array([0.05, -0.24, 0.05])
+    z = (target - c) / np.linalg.norm(target - c)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = np.stack([x, np.cross(z, x), z], 1), c
+    R, p = np.repeat(R, per_pose, 0), np.repeat(p, per_pose, 0)
+    A = T[:3, :3].T
+    u_c, p_c = R[:, :, 2] @ A.T, (p - c) @ A.T
+    n_l, n_r = vg.tangent_plane_normals(vg.closest_axis_point(p_c, u_c), u_c, rho)
+    ray = (p - L_j * R[:, :, 2] - c) @ A.T
+    for i in rng.choice(len(p), wrong, replace=False):
+        n_l[i] = so3_exp(np.radians(4.0) * u_c[i]) @ n_l[i]
+    frames = CameraFrames(
+        pose=np.repeat(np.arange(k), per_pose),
+        R_base_tool=R,
+        p_tip_base_m=p,
+        n_left=n_l,
+        n_right=n_r,
+        junction_ray=ray / np.linalg.norm(ray, axis=1, keepdims=True),
+        junction_visible=np.ones(len(p), bool),
+    )
+    return frames, T
+
+
+def test_camera_pose_and_junction_distance_recovered_from_a_perturbed_start_despite_wrong_lines():
+    rng = np.random.default_rng(4)
+    frames, T = _camera_frames(rng, wrong=15)
+    start = T.copy()
+    start[:3, :3] = so3_exp(np.radians([0.4, -0.3, 0.2])) @ T[:3, :3]
+    start[:3, 3] += [1.5e-3, -1.0e-3, 0.8e-3]
+    res = fit_camera(frames, start, 0.0055, 0.0025)
+    assert np.degrees(np.linalg.norm(so3_log(res.T_base_camera[:3, :3] @ T[:3, :3].T))) < 0.01
+    assert np.linalg.norm(res.T_base_camera[:3, 3] - T[:3, 3]) < 2e-5
+    assert abs(res.junction_proximal_m - 0.004) < 2e-5
+    assert res.rotation_change_deg > 0.5 and res.position_change_mm > 1.5
+    assert res.residual_mm["planes"] < 1e-3 and res.heldout_mm["junction"] < 1e-3
+    assert res.dropped >= 15 and res.poses == 10  # the wrong lines are dropped, not fitted
+
+
+def test_camera_fit_refuses_too_few_poses_parallel_shafts_and_no_junction():
+    rng = np.random.default_rng(5)
+    frames, T = _camera_frames(rng, k=10, per_pose=9)
+
+    def only(keep):
+        return CameraFrames(*(getattr(frames, f)[keep] for f in CameraFrames.__dataclass_fields__))
+
+    with pytest.raises(DegenerateDataError, match="at least 3 static poses"):
+        fit_camera(only(frames.pose < 2), T, 0.004, 0.0025)
+    one_pose = only(frames.pose == 0)
+    with pytest.raises(DegenerateDataError, match="span only"):  # one direction, called three poses
+        fit_camera(dataclasses.replace(one_pose, pose=np.arange(9) % 3), T, 0.004, 0.0025)
+    with pytest.raises(DegenerateDataError, match="junction"):
+        fit_camera(dataclasses.replace(frames, junction_visible=np.zeros(90, bool)), T, 0.004, 0.0025)
