@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.fusion.ablation import DEGRADED, SUBSETS, degrade, run_variant
+from services.fusion.ablation import DEGRADED, SUBSETS, run_variant, variant_inputs
 from services.fusion.evaluation import Estimate, block_windows, load_truth, score_continuous
 from services.fusion.params import Params
 from services.fusion.run_cli import iter_inputs
@@ -47,8 +47,7 @@ def main(argv: list[str] | None = None) -> int:
         msgs = list(iter_inputs(Path(path), {}))
         blocks = block_windows(truth.trials)
         for v in variants:
-            sensors = SUBSETS.get(v, SUBSETS["full"])
-            use = msgs if v in SUBSETS or v == SMOOTH else degrade(v, msgs, blocks, seed=0)
+            use, sensors = (msgs, SUBSETS["full"]) if v == SMOOTH else variant_inputs(v, msgs, blocks, seed=0)
             if v == SMOOTH:
                 t0 = time.process_time()
                 sm = smooth(calib, params, use)

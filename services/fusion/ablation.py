@@ -1,6 +1,7 @@
 """Ablations on one recording, as the paper ran them: the tracking filter re-run with sensor
 subsets and with degraded vision, every variant scored against the bench's ground truth.
 
+`imu_tof_start` is IMU+ToF from a known start: vision only for the first second (`vision_start`).
 Degradations change only the vision observations the filter is fed (the truth is never fed):
 `third` keeps one accepted frame in three, `noise5` adds white tangent-plane noise so that
 the per-frame axis noise is five times the recording's (seeded; the paper "multiplied the vision
@@ -40,7 +41,13 @@ from tiplog.mcap_io import read_metadata
 log = logging.getLogger("tiplog.evaluate")
 
 # variant name -> the filter's sensors (the RCM is always used, as in the paper)
-SUBSETS = {"full": "imu,tof,vision", "vision_only": "vision", "imu_tof": "imu,tof", "imu_vision": "imu,vision"}
+SUBSETS = {
+    "full": "imu,tof,vision",
+    "vision_only": "vision",
+    "imu_tof": "imu,tof",
+    "imu_tof_start": "imu,tof,vision",  # vision only for the first second: see `vision_start`
+    "imu_vision": "imu,vision",
+}
 DEGRADED = ("third", "noise5", "blackout1", "blackout3", "blackout10", "junction_hidden")
 BLACKOUT_COUNT = 16
 JUNCTION_INIT_NS = 1_000_000_000  # junction_hidden keeps the junction this long, to start from
@@ -81,6 +88,24 @@ def _add_noise(msg: Any, rng: np.random.Generator) -> Any:
     return msg
 
 
+def vision_start(msgs: Iterable[tuple]) -> list[tuple]:
+    """The filter's inputs with vision only for one second from the first accepted frame with a
+    visible junction (the filter starts from such a frame): IMU+ToF from a known start. `imu_tof` has no
+    heading at all (it starts from the ToF plane's azimuth); the paper's IMU+ToF "drifted in
+    heading", so it had one to drift from."""
+    out = []
+    until = None
+    for topic, msg, arr in msgs:
+        if topic == "vision/observation":
+            t = msg.header.stamp_ns
+            if until is None and msg.accepted and msg.junction_visible:
+                until = t + JUNCTION_INIT_NS
+            if until is None or t >= until:
+                continue
+        out.append((topic, msg, arr))
+    return out
+
+
 def degrade(name: str, msgs: Iterable[tuple], blocks: list[tuple[str, int, int]], seed: int = 0) -> list[tuple]:
     """The filter's inputs [(topic, message, arrival_ns)] with vision degraded as `name` (one of
     DEGRADED); other topics pass unchanged. ValueError for an unknown name."""
@@ -112,6 +137,17 @@ def degrade(name: str, msgs: Iterable[tuple], blocks: list[tuple[str, int, int]]
                     continue
         out.append((topic, msg, arr))
     return out
+
+
+def variant_inputs(
+    variant: str, msgs: list[tuple], blocks: list[tuple[str, int, int]], seed: int = 0
+) -> tuple[list[tuple], str]:
+    """(the filter's inputs, its sensors) for one variant (a SUBSETS or DEGRADED name)."""
+    if variant == "imu_tof_start":
+        return vision_start(msgs), SUBSETS[variant]
+    if variant in SUBSETS:
+        return msgs, SUBSETS[variant]
+    return degrade(variant, msgs, blocks, seed), SUBSETS["full"]
 
 
 def run_variant(
@@ -151,10 +187,7 @@ def evaluate_variant(
         else Calibration.from_mcap_metadata(read_metadata(session), where=str(session))
     )
     msgs = list(iter_inputs(session, {}))
-    if variant in SUBSETS:
-        use, sensors = msgs, SUBSETS[variant]
-    else:
-        use, sensors = degrade(variant, msgs, block_windows(truth.trials), seed), SUBSETS["full"]
+    use, sensors = variant_inputs(variant, msgs, block_windows(truth.trials), seed)
     est, diag, cpu = run_variant(use, calib, Params(), sensors)
     r = score_continuous(truth, est)
     out = {

@@ -55,6 +55,7 @@ PAPER_DYNAMIC = {
 PAPER_SUBSETS = {
     "vision_only": (13.36, 31.3, 27.52, 32.3),
     "imu_tof": (23.36, 53.1, 13.93, 24.4),
+    "imu_tof_start": (23.36, 53.1, 13.93, 24.4),  # the same row: ours started from a known heading
     "imu_vision": (11.13, 18.2, 9.33, 14.4),
     "full": (1.22, 2.3, 3.04, 5.4),
 }

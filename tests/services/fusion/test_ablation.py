@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from services.fusion.ablation import DEGRADED, JUNCTION_INIT_NS, SUBSETS, blackout_spans, degrade
+from services.fusion.ablation import DEGRADED, JUNCTION_INIT_NS, SUBSETS, blackout_spans, degrade, vision_start
 from tests.services.fusion.sessions import bench_session
 from tiplog.cli import main as tiplog_main
 from tiplog.v1.device_pb2 import Gyro
@@ -65,6 +65,19 @@ def test_junction_hidden_keeps_only_the_first_second_of_junctions_and_leaves_the
     assert len(shown) > 1 and max(shown) < JUNCTION_INIT_NS
     assert sum(m.header.stamp_ns - first >= JUNCTION_INIT_NS for m in vis) > 10  # and hidden after
     assert all(m.junction_visible for m in _vision(msgs))  # copies were changed, not the recording
+
+
+def test_vision_start_keeps_only_the_first_second_of_vision_from_the_first_usable_frame():
+    msgs = _stream()
+    for _, m, _ in msgs[:20]:  # no usable frame in the first ten frames: the second starts later
+        if isinstance(m, VisionObservation):
+            m.junction_visible = False
+    first = next(m.header.stamp_ns for m in _vision(msgs) if m.accepted and m.junction_visible)
+    out = vision_start(msgs)
+    kept = _vision(out)
+    window = [m for m in _vision(msgs) if first <= m.header.stamp_ns < first + JUNCTION_INIT_NS]
+    assert first > 0 and len(window) > 10 and kept == window
+    assert [m for t, m, _ in out if t == "device/gyro"] == [m for t, m, _ in msgs if t == "device/gyro"]
 
 
 def test_blackouts_drop_accepted_frames_inside_the_spans_only():

@@ -48,7 +48,8 @@ def test_paper_quick_end_to_end(tmp_path):
     cmd = [sys.executable, "-m", "tiplog.cli", "evaluate", "--paper", "--quick", "--out", str(out), "--jobs", "2"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "generating 8 bench sessions" in r.stdout and "31/31" in r.stdout  # progress lines
+    n = 11 + 2 * len(SUBSETS) + 2 * len(DEGRADED)  # 7 protocol/calibration tasks, 4 after calibrate
+    assert "generating 8 bench sessions" in r.stdout and f"{n}/{n}" in r.stdout  # progress lines
     rep = json.loads((out / "report.json").read_text())
     assert rep["errors"] == {}, rep["errors"]
     assert rep["wall_time_s"] > 0 and rep["quick"] is True
