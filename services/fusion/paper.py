@@ -7,8 +7,9 @@ study on the bench, one command, one report.
 2. Runs every analysis in a process pool of `--jobs` workers (default: the cores), each
    worker reading its MCAP itself: `tiplog calibrate block FIT --latency LAT` (subprocess),
    the latency table, the translation and rotation protocols (static-trial filter), the
-   magnetometer study, static stability, and on sweeps and teleop every sensor subset and
-   degraded vision (`services.fusion.ablation`) plus full fusion with the calibrate output.
+   magnetometer study, static stability, full fusion on sweeps and teleop with the
+   sessions' as-calibrated metadata, and, once calibrate has written its file, every sensor
+   subset and degraded vision on both with that file (`services.fusion.ablation`).
 3. Writes DIR/report.md (tables with the paper's figures beside ours, wall time at the top),
    DIR/report.json and DIR/*.png. A step that fails is reported (one line) and the rest go on.
 
@@ -155,8 +156,6 @@ def _short(name: str, r: Any) -> str:
 
 def _tasks(d: Path) -> list[tuple[str, str, tuple]]:
     """Longest first, so the pool ends together."""
-    from services.fusion.ablation import variants
-
     out = [
         ("translation", "_task_protocol", (d, "translation")),
         ("rotation", "_task_protocol", (d, "rotation")),
@@ -164,16 +163,24 @@ def _tasks(d: Path) -> list[tuple[str, str, tuple]]:
         ("calibrate", "_task_calibrate", (d,)),
         ("calibrate_rotation", "_task_calibrate", (d, "fit_rotation", "calibration_rotation.yaml")),
     ]
-    out += [(f"ablation:{s}:{v}", "_task_variant", (d, s, v)) for s in ("teleop", "sweeps") for v in variants()]
+    out += [(f"as_calibrated:{s}", "_task_variant", (d, s, "full")) for s in CONTINUOUS]
     out += [("magnetometer", "_task_magnetometer", (d,)), ("latency", "_task_latency", (d,))]
     return out
 
 
+def _ablations(calibrated: bool) -> list[tuple[str, str, tuple]]:
+    """Every subset and degradation on both continuous sessions (arguments after the folder)."""
+    from services.fusion.ablation import variants
+
+    return [
+        (f"ablation:{s}:{v}", "_task_variant", (s, v, calibrated)) for s in ("teleop", "sweeps") for v in variants()
+    ]
+
+
+# Run once the calibration they read is written. The subsets and degraded vision run with the
+# calibrate output, as a lab would run them (if calibrate fails, with the as-calibrated metadata).
 AFTER_CALIBRATE = {
-    "calibrate": [
-        ("translation_calibrated", "_task_protocol", ("translation", "calibration.yaml")),
-        *[(f"calibrated:{s}", "_task_variant", (s, "full", True)) for s in CONTINUOUS],
-    ],
+    "calibrate": [("translation_calibrated", "_task_protocol", ("translation", "calibration.yaml")), *_ablations(True)],
     "calibrate_rotation": [("rotation_calibrated", "_task_protocol", ("rotation", "calibration_rotation.yaml"))],
 }
 
@@ -227,6 +234,7 @@ def analyse(out: Path, jobs: int, say) -> dict[str, Any]:
     """Every analysis task in a process pool; results gathered into the report's dict."""
     results: dict[str, Any] = {}
     errors: dict[str, str] = {}
+    ablations_on = "calibrate"  # or "as_calibrated" if calibrate fails
     tasks = _tasks(out)
     total = len(tasks) + sum(len(v) for v in AFTER_CALIBRATE.values())
     with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -242,14 +250,17 @@ def analyse(out: Path, jobs: int, say) -> dict[str, Any]:
                 n = len(results) + len(errors)
                 say(f"{n}/{total} {name} ({sec:.1f} s): {err or _short(name, r)}")
                 for nm, fn, a in AFTER_CALIBRATE.get(name, []):
-                    if err:
-                        errors[nm] = f"no calibration file ({name} failed)"
-                    else:
+                    if not err:
                         pending.add(pool.submit(_run_task, nm, fn, (out, *a)))
-    return gather(results, errors)
+                    elif nm.startswith("ablation:"):
+                        pending.add(pool.submit(_run_task, nm, fn, (out, *a[:-1], False)))
+                        ablations_on = "as_calibrated"
+                    else:
+                        errors[nm] = f"no calibration file ({name} failed)"
+    return gather(results, errors, ablations_on)
 
 
-def gather(results: dict[str, Any], errors: dict[str, str]) -> dict[str, Any]:
+def gather(results: dict[str, Any], errors: dict[str, str], ablations_on: str = "calibrate") -> dict[str, Any]:
     """The report's dict from the tasks' results (keys documented in docs/evaluation.md)."""
     res: dict[str, Any] = {"errors": errors}
     for k in ("translation", "rotation"):
@@ -267,6 +278,7 @@ def gather(results: dict[str, Any], errors: dict[str, str]) -> dict[str, Any]:
             res[k] = results[task]
     res["dynamic"] = {}
     res["subsets"], res["degraded"] = {}, {}
+    res["ablations_calibration"] = ablations_on
     for name, r in results.items():
         if name.startswith("ablation:"):
             _, scen, variant = name.split(":")
@@ -274,10 +286,10 @@ def gather(results: dict[str, Any], errors: dict[str, str]) -> dict[str, Any]:
             row = res[key].setdefault(variant, {"tip_rmse_mm": {}, "tip_p95_mm": {}, "block_mean_mm": {}, "resets": {}})
             for m in row:
                 row[m][scen] = r[m]
-            if variant == "full":
-                res["dynamic"].setdefault(scen, {})["as_calibrated"] = r
-        elif name.startswith("calibrated:"):
-            res["dynamic"].setdefault(name.split(":")[1], {})["calibrated"] = r
+            if variant == "full" and res["ablations_calibration"] == "calibrate":
+                res["dynamic"].setdefault(scen, {})["calibrated"] = r
+        elif name.startswith("as_calibrated:"):
+            res["dynamic"].setdefault(name.split(":")[1], {})["as_calibrated"] = r
     return res
 
 
@@ -304,7 +316,7 @@ def _plots(res: dict[str, Any], out: Path, say) -> list[str]:
         if f"_{k}_errors" in res:
             files += protocol_boxplots(res[f"_{k}_errors"], out)
     for d in res["dynamic"].values():
-        a = d.get("as_calibrated")
+        a = d.get("calibrated") or d.get("as_calibrated")
         if a and "_series" in a:
             files += plot(a, out)
     tables = {

@@ -188,27 +188,30 @@ def latency_md(res: dict[str, Any]) -> list[str]:
 def dynamic_md(res: dict[str, Any]) -> list[str]:
     dyn = res.get("dynamic", {})
     lines = [
-        "| Session | Block | RMSE | Median | p95 | Radial | Tang. | calibrated RMSE | paper RMSE / median / p95 / radial / tang. |",
+        "| Session | Block | RMSE | Median | p95 | Radial | Tang. | as-calibrated RMSE | paper RMSE / median / p95 / radial / tang. |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for scen in ("sweeps", "teleop"):
         d = dyn.get(scen, {})
-        a, c = d.get("as_calibrated"), d.get("calibrated")
-        if not a:
+        main, ref = d.get("calibrated"), d.get("as_calibrated")
+        if not main:  # calibrate failed: the as-calibrated run alone
+            main, ref = ref, None
+        if not main:
             lines.append(f"| {scen} | - | {_err(res, f'ablation:{scen}:full') or 'n/a'} | | | | | | |")
             continue
-        cal_blocks = {b["name"]: b for b in (c or {}).get("blocks", [])}
-        for b in [*a["blocks"], {"name": "pooled", **a["pooled"]}]:
-            cb = (c or {}).get("pooled") if b["name"] == "pooled" else cal_blocks.get(b["name"])
+        ref_blocks = {b["name"]: b for b in (ref or {}).get("blocks", [])}
+        for b in [*main["blocks"], {"name": "pooled", **main["pooled"]}]:
+            rb = (ref or {}).get("pooled") if b["name"] == "pooled" else ref_blocks.get(b["name"])
             p = PAPER_DYNAMIC[scen].get(b["name"])
             ps = " / ".join(f"{x:.2f}" for x in p) if p else "-"
             lines.append(
                 f"| {scen} | {b['name']} | {b['tip_rmse_mm']:.2f} | {b['tip_median_mm']:.2f} | {b['tip_p95_mm']:.2f} | "
-                f"{b['radial_rmse_mm']:.2f} | {b['tangential_rmse_mm']:.2f} | {_f(cb['tip_rmse_mm'] if cb else None)} | {ps} |"
+                f"{b['radial_rmse_mm']:.2f} | {b['tangential_rmse_mm']:.2f} | {_f(rb['tip_rmse_mm'] if rb else None)} | {ps} |"
             )
     lines.append(
-        "\nTip error in mm, base frame, no alignment, first 20 % of each block excluded; the session's "
-        "as-calibrated constants, and `tiplog calibrate block --latency`'s file in the calibrated column."
+        "\nTip error in mm, base frame, no alignment, first 20 % of each block excluded, with "
+        "`tiplog calibrate block --latency`'s file (the fit-only block's calibration, as the paper's); "
+        "the sessions' as-calibrated constants (marker hand-eye, no refit) in their own column."
     )
     return lines
 
@@ -245,7 +248,12 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
         )
     lines.append(
         "\nmm; subsets: pooled RMSE with p95 in brackets; degraded: mean of the blocks' RMSE as the paper "
-        "reports it, pooled in parentheses. Blackouts: sixteen per session."
+        "reports it, pooled in parentheses. Blackouts: sixteen per session. Calibration: "
+        + (
+            "`tiplog calibrate block`'s file."
+            if res.get("ablations_calibration", "calibrate") == "calibrate"
+            else "the sessions' as-calibrated metadata (calibrate failed)."
+        )
     )
     return lines
 

@@ -89,6 +89,11 @@ def test_camera_pose_refit_makes_vision_agree_with_the_robot_at_held_out_poses(f
     assert cam["heldout_mm"]["planes"] < cam["prior_residual_mm"]["planes"]
     assert not np.allclose(cal.T_base_camera, data.prior.T_base_camera)
     assert max(cam["sd"]["rotation_deg"]) < 0.1
+    # still within the marker hand-eye's own tolerance of the true pose (0.7 deg), and within
+    # 5 mm: along the shaft the pose trades off against the junction-to-tip distance
+    T = np.asarray(truth["T_base_camera"])
+    assert rotation_error_deg(cal.T_base_camera[:3, :3], T[:3, :3]) < 0.7
+    assert np.linalg.norm(cal.T_base_camera[:3, 3] - T[:3, 3]) < 5e-3
 
 
 def test_cli_writes_a_calibration_fusion_can_read_and_never_overwrites(fit_session, tmp_path, capsys):

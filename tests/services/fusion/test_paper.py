@@ -11,6 +11,7 @@ import sys
 import pytest
 
 from services.fusion.ablation import DEGRADED, SUBSETS
+from services.fusion.paper import gather
 from services.fusion.paper_report import PAPER_TRANSLATION_STEPS, markdown
 from tiplog.cli import main as tiplog_main
 
@@ -40,6 +41,17 @@ def test_a_failed_step_is_reported_not_fatal():
     assert "Wall time: 12 s" in md.splitlines()[2]
     assert "_Not measured: UserError: no trials_" in md
     assert "| translation.rmse_mm | ≤ 1.21 | n/a | no |" in md
+
+
+def test_ablations_say_which_calibration_they_ran_with():
+    row = {"kind": "subset", "tip_rmse_mm": 1.0, "tip_p95_mm": 2.0, "block_mean_mm": 1.0, "resets": 0}
+    results = {"ablation:sweeps:full": row, "as_calibrated:sweeps": {**row, "tip_rmse_mm": 1.5}}
+    on_file = gather(results, {})
+    assert on_file["dynamic"]["sweeps"]["calibrated"]["tip_rmse_mm"] == 1.0
+    assert on_file["dynamic"]["sweeps"]["as_calibrated"]["tip_rmse_mm"] == 1.5
+    fallback = gather(results, {"calibrate": "UserError: no poses"}, "as_calibrated")
+    assert "calibrated" not in fallback["dynamic"]["sweeps"] and fallback["ablations_calibration"] == "as_calibrated"
+    assert fallback["subsets"]["full"]["tip_rmse_mm"]["sweeps"] == 1.0
 
 
 @pytest.mark.slow
