@@ -7,7 +7,8 @@ the sweeps and the teleoperated blocks, so sixteen per session is the harsher re
 filter never sees the truth; scoring uses `services.fusion.evaluation` (first 20 % of each
 block excluded). `tiplog evaluate SESSION --ablations` runs the same variants in parallel.
 
-    python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...] [--json OUT]
+    python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...]
+        [--calibration FILE] [--json OUT]
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("sessions", nargs="+", help="bench sessions (sweeps, teleop, demo)")
     ap.add_argument("--variants", default="full", help=f"comma list of {', '.join([*SUBSETS, *DEGRADED, SMOOTH])}")
     ap.add_argument("--params", help="parameter YAML (default: built-in)")
+    ap.add_argument(
+        "--calibration", help="calibration YAML for every session (default: each one's as-calibrated metadata)"
+    )
     ap.add_argument("--json", help="write all results here")
     args = ap.parse_args(argv)
     params = Params.load_yaml(args.params) if args.params else Params()
@@ -43,7 +47,11 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for path in args.sessions:
         truth = load_truth(path)
-        calib = Calibration.from_mcap_metadata(read_metadata(path), where=path)
+        calib = (
+            Calibration.load_yaml(args.calibration)
+            if args.calibration
+            else Calibration.from_mcap_metadata(read_metadata(path), where=path)
+        )
         msgs = list(iter_inputs(Path(path), {}))
         blocks = block_windows(truth.trials)
         for v in variants:
