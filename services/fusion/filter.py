@@ -203,6 +203,11 @@ class TrackingFilter:
             self._Q if self.brho_free(s) else self._Q_held, prm.gyro_bias_rw_dps_rts * DEG,
             prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
         )  # fmt: skip
+        if self.imu and dt > prm.imu_gap_ms * 1e-3:
+            # no IMU sample for this long (a stalled host): the held specific force says little
+            # about the motion, so the velocity gets the uncertainty it has without an IMU
+            # (held, a tool that was accelerating ran off at 0.25 m/s after a 0.7 s stall)
+            s.P[IV, IV] += np.eye(3) * (prm.no_imu_accel_rw_mps2_rts**2 * (dt - prm.imu_gap_ms * 1e-3))
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
         self.propagate(s, t_ns)
@@ -213,8 +218,10 @@ class TrackingFilter:
             if len(s.w_prev) > k:
                 t0, w0 = s.w_prev.pop(0)
                 dt = (t_ns - t0) * 1e-9
-                if dt > 0:
+                if dt >= self.prm.alpha_min_span_ms * 1e-3:
                     s.alpha_tool = self.R_ti @ ((w - w0) / dt)
+                else:  # stamps bunched by a stalled host: no angular acceleration from them
+                    s.alpha_tool = np.zeros(3)
             s.w_imu = w
         s.gyro_n += 1
         if s.gyro_n % self.prm.rcm_every == 0:
@@ -396,4 +403,6 @@ class TrackingFilter:
             return "covariance"
         if self.vision and s.vis_reject_run >= self.prm.reset_after_vision_rejections:
             return "innovation"
+        if float(s.v @ s.v) > self.prm.max_speed_mps**2:
+            return "speed"
         return None

@@ -38,7 +38,13 @@ class Params:
     accel_bias_rw_mps2_rts: float = 0.00001
     tof_offset_rw_mm_rts: float = 1.5
     alpha_window: int = 4  # gyro samples spanned by the angular-acceleration difference
-    # without IMU (ablation): random walks standing in for the gyro and accelerometer
+    # ... over at least this long: a loaded host's gateway can stamp a backlog of samples 1 ns
+    # apart, and a difference over nanoseconds is no angular acceleration (it threw the tip
+    # kilometres); over a shorter span the lever-arm term is left out for that sample
+    alpha_min_span_ms: float = 10.0
+    imu_gap_ms: float = 50.0  # propagating further than this without an IMU sample: see filter.propagate
+    # without IMU (ablation, and across IMU gaps for the velocity): random walks standing in
+    # for the gyro and accelerometer
     no_imu_rate_rw_dps_rts: float = 40.0
     no_imu_accel_rw_mps2_rts: float = 0.3
     # --- initial uncertainty ------------------------------------------------------------
@@ -86,6 +92,7 @@ class Params:
     reacquire_agree_deg: float = 2.0
     reacquire_agree_mm: float = 6.0
     max_position_sigma_mm: float = 200.0
+    max_speed_mps: float = 2.0  # a faster tip is a diverged state (hand-held: well under 1 m/s)
 
     def __post_init__(self) -> None:
         for f in fields(self):
