@@ -67,6 +67,12 @@ class StaticParams:
     junction_min_sin2: float = 0.45
     trocar_gate_mm: float = 0.0  # 0: off (the n_L x n_R line is ill-conditioned; the planes are gated on innovation)
     depth_reacquire_frames: int = 5  # this many vision depths in a row refused: the depth is reopened; 0: off
+    # relative rotation between the windows (services.fusion.static_trials): the error of the
+    # windows' own absolute attitudes (pose-locked: accelerometer 0.21 deg per pose, more in
+    # roll) against the gyro's across the move per degree turned (gain, mounting, bias in motion);
+    # relrot_absolute_deg 0 keeps the filter's own post-window attitude
+    relrot_absolute_deg: float = 0.45
+    relrot_gyro_per_deg: float = 0.008
 
 
 @dataclass

@@ -8,8 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from services.fusion.evaluate_static import bootstrap_rmse_ci, main, scale, summary
+from services.fusion.evaluate_static import bootstrap_rmse_ci, main, robot_windows, scale, summary
+from services.fusion.static_filter import StaticParams
+from services.fusion.static_trials import estimate_trials
 from tiplog.cli import main as tiplog_main
+from tiplog.geometry import rotation_angle
 
 
 def test_summary_bootstrap_and_scale_on_known_errors():
@@ -62,3 +65,20 @@ def test_rotation_keys_and_plausible_accuracy(sessions, tmp_path):
     assert 0.0 < r["angle_rmse_deg"] <= r["relrot_rmse_deg"] + 1e-9
     assert 0.0 < r["tip_rmse_mm"] < 5.0
     assert 0.9 < r["gain"] < 1.1
+
+
+@pytest.mark.slow
+def test_the_gyro_link_lowers_the_relative_rotation_error(sessions):
+    """The blend of the post window's attitude with the pre window's carried by the gyro,
+    against the filter's own post-window attitude, on the same trials (truth read here only)."""
+    path = sessions["rotation"]
+
+    def relrot(params):
+        est, _ = estimate_trials(path, None, params)
+        truth = robot_windows(path, est)
+        Rt = np.array([b[1] @ a[1].T for a, b in truth])
+        Re = np.array([e.R_rel for e in est])
+        return float(np.sqrt(np.mean(np.degrees(rotation_angle(np.einsum("nij,nkj->nik", Re, Rt))) ** 2)))
+
+    blended, own = relrot(StaticParams()), relrot(StaticParams(relrot_absolute_deg=0.0))
+    assert blended < 0.9 * own, (blended, own)
