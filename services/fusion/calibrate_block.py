@@ -162,9 +162,11 @@ def calibrate_block(
             "sd": {k: _r(v) for k, v in t.sd.items()},
             "poses": t.poses,
         }
+    if "camera" in fits or "vision_offset" in fits:
+        frames = camera_frames(data, win, prior.latency_ms.get("camera", 0.0))
     if "camera" in fits:
         cam = fit_camera(
-            camera_frames(data, win, prior.latency_ms.get("camera", 0.0)),
+            frames,
             prior.T_base_camera,
             prior.junction_proximal_m - prior.vision_tip_offset_m,
             prior.shaft_radius_m,
@@ -187,19 +189,19 @@ def calibrate_block(
         }
     T_base_camera = new.get("T_base_camera", prior.T_base_camera)
     if "vision_offset" in fits:
-        v = data.vision
-        lat = prior.latency_ms.get("camera", 0.0)
-        ok = v["accepted"] & v["junction_visible"] if len(v["capture_ns"]) else np.zeros(0, bool)
-        vi = window_samples(win, v["capture_ns"], lat, ok)
+        f = frames if "camera" in fits else camera_frames(data, win, prior.latency_ms.get("camera", 0.0))
         per_pose = []
-        for idx in vi:
-            if len(idx) == 0:
-                per_pose.append(np.zeros(0))
-                continue
-            R, p = interp_pose(
-                v["capture_ns"][idx] - int(lat * 1e6), data.robot_t_ns, data.R_base_tool, data.p_tip_base_m
+        for k in range(len(win)):
+            sel = (f.pose == k) & f.junction_visible
+            per_pose.append(
+                junction_offsets_m(
+                    f.junction_ray[sel],
+                    f.R_base_tool[sel],
+                    f.p_tip_base_m[sel],
+                    T_base_camera,
+                    prior.junction_proximal_m,
+                )
             )
-            per_pose.append(junction_offsets_m(v["junction_ray"][idx], R, p, T_base_camera, prior.junction_proximal_m))
         vo = fit_vision_offset(per_pose)
         # written as the junction-to-tip distance itself with a zero offset, so that a reader
         # computing the tip as J + (junction_proximal_m -/+ vision_tip_offset_m) u gets it right
