@@ -32,8 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from tiplog.calibration_fits import require
+from tiplog.calibration_fits.rcm import direction_spread_deg
 from tiplog.calibration_fits.windows import kfold
-from tiplog.geometry import skew, so3_exp, so3_log
+from tiplog.geometry import rotation_angle, skew, so3_exp, so3_log
 
 FIT = "camera"
 BEHIND_TIP_M = 0.10  # second point of the axis for the tangent planes
@@ -107,10 +108,7 @@ def _solve(f: CameraFrames, T0: np.ndarray, L0: float, rho: float) -> tuple[np.n
     for it in range(ITERATIONS):
         ep, Jp, ej, Jj = _residuals(f, R, c, L, rho)
         if it:  # robust scale of each group from the current residuals; outliers get weight 0
-            sp = 1.4826 * np.median(np.abs(ep))
-            sj = 1.4826 * np.median(np.abs(ej)) if ej.size else 1.0
-            wp = (np.abs(ep) < OUTLIER_SD * sp) / sp
-            wj = (np.abs(ej) < OUTLIER_SD * sj) / sj
+            wp, wj = _robust_weights(ep), _robust_weights(ej)
         dev = np.concatenate([so3_log(R @ R0.T), c - c0, [L - L0]])
         A = np.concatenate([(Jp * wp[..., None]).reshape(-1, 7), (Jj * wj[..., None]).reshape(-1, 7), np.diag(prior_w)])
         b = np.concatenate([(ep * wp).ravel(), (ej * wj).ravel(), dev * prior_w])
@@ -165,9 +163,7 @@ def fit_camera(
         FIT,
         f"needs frames showing the shaft junction (got {int(frames.junction_visible.sum())})",
     )
-    u = frames.R_base_tool[:, :, 2]
-    lam = np.linalg.eigvalsh(np.eye(3) - (u.T @ u) / len(u))
-    spread = float(np.degrees(np.arcsin(np.sqrt(np.clip(lam[0], 0.0, 1.0)))))
+    spread = direction_spread_deg(frames.R_base_tool[:, :, 2])
     require(spread >= 1.0, FIT, f"the shaft directions span only {spread:.2f} deg (need 1 deg)")
     T0 = np.asarray(T_base_camera, float)
     R, c, L, st = _solve(frames, T0, junction_proximal_m, shaft_radius_m)
@@ -185,7 +181,7 @@ def fit_camera(
     return CameraResult(
         T_base_camera=T,
         junction_proximal_m=L,
-        rotation_change_deg=float(np.degrees(np.linalg.norm(so3_log(R @ T0[:3, :3].T)))),
+        rotation_change_deg=float(np.degrees(rotation_angle(R @ T0[:3, :3].T))),
         position_change_mm=float(np.linalg.norm(c - T0[:3, 3]) * 1e3),
         residual_mm={"planes": _rms_mm(st["ep"][st["kept_p"]]), "junction": _rms_mm(st["ej"][st["kept_j"]])},
         prior_residual_mm=residuals_mm(frames, T0, junction_proximal_m, shaft_radius_m),
@@ -204,10 +200,15 @@ def fit_camera(
     )
 
 
+def _robust_weights(x: np.ndarray) -> np.ndarray:
+    """1 / robust SD (1.4826 x median |x|) for residuals within OUTLIER_SD of it, else 0."""
+    if not x.size:
+        return np.ones_like(x)
+    sd = 1.4826 * np.median(np.abs(x))
+    return (np.abs(x) < OUTLIER_SD * sd) / sd
+
+
 def _robust_rms_mm(x: np.ndarray) -> float:
     """RMS [mm] of the residuals within four robust SDs (wrong lines and gross junction
     errors excluded, as in the fit)."""
-    if not x.size:
-        return float("nan")
-    s = 1.4826 * np.median(np.abs(x))
-    return _rms_mm(x[np.abs(x) < OUTLIER_SD * s])
+    return _rms_mm(x[_robust_weights(x) > 0])

@@ -27,13 +27,18 @@ class RcmResult:
     poses: int
 
 
+def direction_spread_deg(u: np.ndarray) -> float:
+    """Angular spread of unit directions u (n, 3) [deg]: 0 when all are parallel (the smallest
+    eigenvalue of the mean projector I - u u^T is the squared sine of the spread)."""
+    lam = np.linalg.eigvalsh(np.eye(3) - (u.T @ u) / len(u))
+    return float(np.degrees(np.arcsin(np.sqrt(np.clip(lam[0], 0.0, 1.0)))))
+
+
 def _solve(p: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, float]:
     P = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
     A = P.sum(0)
     b = np.einsum("nij,nj->i", P, p)
-    lam = np.linalg.eigvalsh(A / len(p))
-    spread = float(np.degrees(np.arcsin(np.sqrt(np.clip(lam[0], 0.0, 1.0)))))
-    return np.linalg.lstsq(A, b, rcond=None)[0], spread
+    return np.linalg.lstsq(A, b, rcond=None)[0], direction_spread_deg(u)
 
 
 def line_distance(x: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.ndarray:
