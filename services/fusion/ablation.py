@@ -88,22 +88,23 @@ def _add_noise(msg: Any, rng: np.random.Generator) -> Any:
     return msg
 
 
+def start_window(msgs: Iterable[tuple]) -> tuple[int, int] | None:
+    """[t0, t0 + 1 s) from the first accepted vision frame with a visible junction (the frame
+    the tracking filter starts from), or None. `junction_hidden` keeps the junction and
+    `imu_tof_start` keeps vision in this window, so that the filter can start."""
+    for topic, msg, _ in msgs:
+        if topic == "vision/observation" and msg.accepted and msg.junction_visible:
+            return msg.header.stamp_ns, msg.header.stamp_ns + JUNCTION_INIT_NS
+    return None
+
+
 def vision_start(msgs: Iterable[tuple]) -> list[tuple]:
-    """The filter's inputs with vision only for one second from the first accepted frame with a
-    visible junction (the filter starts from such a frame): IMU+ToF from a known start. `imu_tof` has no
-    heading at all (it starts from the ToF plane's azimuth); the paper's IMU+ToF "drifted in
-    heading", so it had one to drift from."""
-    out = []
-    until = None
-    for topic, msg, arr in msgs:
-        if topic == "vision/observation":
-            t = msg.header.stamp_ns
-            if until is None and msg.accepted and msg.junction_visible:
-                until = t + JUNCTION_INIT_NS
-            if until is None or t >= until:
-                continue
-        out.append((topic, msg, arr))
-    return out
+    """The filter's inputs with vision only in the `start_window`: IMU+ToF from a known start.
+    `imu_tof` has no heading at all (it starts from the ToF plane's azimuth); the paper's
+    IMU+ToF "drifted in heading", so it had one to drift from."""
+    msgs = list(msgs)
+    t0, t1 = start_window(msgs) or (0, 0)
+    return [e for e in msgs if e[0] != "vision/observation" or t0 <= e[1].header.stamp_ns < t1]
 
 
 def degrade(name: str, msgs: Iterable[tuple], blocks: list[tuple[str, int, int]], seed: int = 0) -> list[tuple]:
@@ -113,16 +114,14 @@ def degrade(name: str, msgs: Iterable[tuple], blocks: list[tuple[str, int, int]]
         raise ValueError(f"degradation: unknown name {name!r}; choose from {', '.join(DEGRADED)}")
     rng = np.random.default_rng(seed)
     spans = blackout_spans(blocks, int(float(name[len("blackout") :]) * 1e9)) if name.startswith("blackout") else []
+    msgs = list(msgs)
+    t0, t1 = start_window(msgs) or (0, 0)
     out = []
     accepted = 0
-    init_until = None
     for topic, msg, arr in msgs:
         if topic == "vision/observation":
             if name == "junction_hidden":
-                t = msg.header.stamp_ns
-                if init_until is None and msg.accepted and msg.junction_visible:
-                    init_until = t + JUNCTION_INIT_NS
-                if init_until is None or t >= init_until or not msg.accepted:
+                if not (msg.accepted and t0 <= msg.header.stamp_ns < t1):
                     msg = copy.deepcopy(msg)
                     msg.junction_visible = False
             elif msg.accepted:
