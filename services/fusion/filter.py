@@ -127,6 +127,9 @@ class TrackingFilter:
         self._Q_held = Q.copy()  # while b_rho is held its uncertainty is too: the ToF stays informative
         self._Q_held[IBR] = 0.0
         self._brho_window_ns = p.tof_offset_window_ms * 1e6
+        self._imu_gap_s = p.imu_gap_ms * 1e-3
+        self._alpha_min_span_s = p.alpha_min_span_ms * 1e-3
+        self._max_speed2 = p.max_speed_mps**2
 
     # ------------------------------------------------------------------ initialisation
     def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
@@ -203,11 +206,11 @@ class TrackingFilter:
             self._Q if self.brho_free(s) else self._Q_held, prm.gyro_bias_rw_dps_rts * DEG,
             prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
         )  # fmt: skip
-        if self.imu and dt > prm.imu_gap_ms * 1e-3:
+        if self.imu and dt > self._imu_gap_s:
             # no IMU sample for this long (a stalled host): the held specific force says little
             # about the motion, so the velocity gets the uncertainty it has without an IMU
             # (held, a tool that was accelerating ran off at 0.25 m/s after a 0.7 s stall)
-            s.P[IV, IV] += np.eye(3) * (prm.no_imu_accel_rw_mps2_rts**2 * (dt - prm.imu_gap_ms * 1e-3))
+            s.P[IV, IV] += np.eye(3) * (prm.no_imu_accel_rw_mps2_rts**2 * (dt - self._imu_gap_s))
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
         self.propagate(s, t_ns)
@@ -218,7 +221,7 @@ class TrackingFilter:
             if len(s.w_prev) > k:
                 t0, w0 = s.w_prev.pop(0)
                 dt = (t_ns - t0) * 1e-9
-                if dt >= self.prm.alpha_min_span_ms * 1e-3:
+                if dt >= self._alpha_min_span_s:
                     s.alpha_tool = self.R_ti @ ((w - w0) / dt)
                 else:  # stamps bunched by a stalled host: no angular acceleration from them
                     s.alpha_tool = np.zeros(3)
@@ -403,6 +406,6 @@ class TrackingFilter:
             return "covariance"
         if self.vision and s.vis_reject_run >= self.prm.reset_after_vision_rejections:
             return "innovation"
-        if float(s.v @ s.v) > self.prm.max_speed_mps**2:
+        if float(s.v @ s.v) > self._max_speed2:
             return "speed"
         return None

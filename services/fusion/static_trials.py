@@ -30,7 +30,7 @@ import numpy as np
 from services.fusion.static_filter import StaticFilter, StaticParams, inclined_rotation, initial_heading
 from tiplog import mcap_io
 from tiplog.calibration import Calibration
-from tiplog.geometry import so3_exp, so3_log
+from tiplog.geometry import rotation_angle, so3_exp, so3_log
 
 TOF_VALID = 1
 UPDATES = frozenset({"accel", "tof", "vision"})  # what can be switched off for ablations
@@ -152,7 +152,7 @@ def _blend_gyro(
 ) -> np.ndarray:
     """W_post's attitude blended with W_pre's carried by the gyro (see the module docstring)."""
     G = R_tool_imu @ gyro_link(t_ns, w_imu, t0, t1, bias) @ R_tool_imu.T
-    theta_deg = float(np.degrees(np.linalg.norm(so3_log(G))))
+    theta_deg = float(np.degrees(rotation_angle(G)))
     sa2 = prm.relrot_absolute_deg**2
     weight = sa2 / (sa2 + (prm.relrot_gyro_per_deg * theta_deg) ** 2) if sa2 > 0 else 0.0
     return Rq @ so3_exp(weight * so3_log(Rq.T @ (Rp @ G)))
