@@ -183,6 +183,8 @@ AFTER_CALIBRATE = {
     "calibrate": [("translation_calibrated", "_task_protocol", ("translation", "calibration.yaml")), *_ablations(True)],
     "calibrate_rotation": [("rotation_calibrated", "_task_protocol", ("rotation", "calibration_rotation.yaml"))],
 }
+# task name -> its arguments without the calibrate file, run instead when calibrate fails
+IF_CALIBRATE_FAILS = {nm: a for nm, _, a in _ablations(False)}
 
 
 def check_out(out: Path, force: bool) -> None:
@@ -252,8 +254,8 @@ def analyse(out: Path, jobs: int, say) -> dict[str, Any]:
                 for nm, fn, a in AFTER_CALIBRATE.get(name, []):
                     if not err:
                         pending.add(pool.submit(_run_task, nm, fn, (out, *a)))
-                    elif nm.startswith("ablation:"):
-                        pending.add(pool.submit(_run_task, nm, fn, (out, *a[:-1], False)))
+                    elif nm in IF_CALIBRATE_FAILS:  # the same task on the as-calibrated metadata
+                        pending.add(pool.submit(_run_task, nm, fn, (out, *IF_CALIBRATE_FAILS[nm])))
                         ablations_on = "as_calibrated"
                     else:
                         errors[nm] = f"no calibration file ({name} failed)"
