@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from services.fusion import kernels
+from services.fusion.tof_map import TofMap
 from services.fusion.init import closest_params, initial_rotation, perp_basis
 from services.fusion.params import SENSORS, Params
 from tiplog.calibration import Calibration
@@ -130,6 +131,11 @@ class TrackingFilter:
         self._imu_gap_s = p.imu_gap_ms * 1e-3
         self._alpha_min_span_s = p.alpha_min_span_ms * 1e-3
         self._max_speed2 = p.max_speed_mps**2
+        self.tof_map = (
+            TofMap(p.tof_map_sigma_deg, p.tof_map_sigma_mm, p.tof_map_bin_ms, p.tof_map_window_s, p.tof_map_prior_weight)
+            if p.tof_map and self.tof and self.vision
+            else None
+        )
 
     # ------------------------------------------------------------------ initialisation
     def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
@@ -294,9 +300,19 @@ class TrackingFilter:
         if den < 0.05:
             _bump(s.counts, "rejected:tof:grazing")
             return False
+        free = self.brho_free(s)
+        tmap = self.tof_map
+        if tmap is not None:
+            if free:
+                t, R, e = s.t_ns, s.R.copy(), range_m - (rho - s.brho)
+                p = s.p.copy()
+            else:
+                rho += tmap.predict(s.t_ns, s.R, s.p, s.brho) - s.brho
         y = np.array([range_m - rho])
-        r = self._tof_r if self.brho_free(s) else self._tof_r_held
-        return self._update(s, H, y, r, self.prm.gate_chi2_1, "tof")
+        ok = self._update(s, H, y, self._tof_r if free else self._tof_r_held, self.prm.gate_chi2_1, "tof")
+        if ok and tmap is not None and free:
+            tmap.add(t, R, p, e)
+        return ok
 
     def _clamp_depth(self, s: State) -> None:
         """The tip back to the physical insertion range along the shaft (depth_min/max_m)."""

@@ -64,10 +64,17 @@ class Params:
     # weighed less while vision tips also give the depth (the pose-locked part then only adds
     # error), more while b_rho is held and the ToF is the only depth (blackouts, junction hidden)
     tof_sigma_mm: float = 45.0
-    tof_sigma_held_mm: float = 20.0
+    tof_sigma_held_mm: float = 14.0
     tof_min_mm: float = 20.0
     tof_max_mm: float = 400.0
     tof_offset_window_ms: float = 2000.0  # b_rho estimated only within this of an independent vision tip
+    # the ToF's pose-locked error learnt while b_rho is free, used while it is held (tof_map.py)
+    tof_map: bool = True
+    tof_map_sigma_deg: float = 1.0
+    tof_map_sigma_mm: float = 6.0
+    tof_map_bin_ms: float = 50.0
+    tof_map_window_s: float = 120.0
+    tof_map_prior_weight: float = 2.0
     vision_plane_sigma_deg: float = 0.4
     vision_offset_sigma_mm: float = 0.25
     vision_ray_sigma_mm: float = 1.0

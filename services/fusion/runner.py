@@ -273,6 +273,8 @@ class FusionRunner:
         self.stats["max_rewind_ms"] = max(self.stats["max_rewind_ms"], (self._done_keys[-1][0] - key[0]) * 1e-6)
         snap_key = self._snap_keys[i]
         self._track = self._snaps[i].copy()
+        if self.filt.tof_map is not None:
+            self.filt.tof_map.truncate(snap_key[0])
         del self._snap_keys[i + 1 :]
         del self._snaps[i + 1 :]
         j = bisect.bisect_right(self._done_keys, snap_key)

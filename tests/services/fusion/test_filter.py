@@ -163,6 +163,32 @@ def test_tof_weighs_more_while_it_is_the_only_depth():
     assert abs(depth["held"]) > 1.5 * abs(depth["free"]) > 0.0
 
 
+def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
+    """At this pose the range reads 4 mm long, learnt while b_rho was free; b_rho was then held
+    at 0 (set where the ToF read true). Without vision, the ToF at this pose then leaves the
+    depth where it is; without the map it pulls the tip off along the shaft, towards 4 mm."""
+    moved = {}
+    for use_map in (True, False):
+        f, s, R, p = _run_static(3.0, np.zeros(3))
+        f = TrackingFilter(f.c, Params(tof_map=use_map))
+        m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
+        rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+        learn = s.copy()
+        for k in range(100):
+            learn.t_ns = s.t_ns + k * 10_000_000
+            f.update_tof(learn, rho + 0.004)
+        assert (f.tof_map is not None and len(f.tof_map) > 0) == use_map
+        held = s.copy()
+        held.t_ns = learn.t_ns + 10_000_000
+        held.last_tip_ns = held.t_ns - 3_000_000_000
+        held.brho = 0.0
+        L0 = float(held.R[:, 2] @ (held.p - f.rcm))
+        for _ in range(200):
+            f.update_tof(held, rho + 0.004)
+        moved[use_map] = abs(float(held.R[:, 2] @ (held.p - f.rcm)) - L0)
+    assert moved[True] < 0.25 * moved[False] and moved[False] > 0.15e-3, moved
+
+
 def test_held_tof_offset_moves_through_no_other_update():
     """With the junction hidden (no independent tip), b_rho is correlated with the tip by the
     ToF updates, but neither the RCM, the vision axis, gravity nor time moves it or its variance:

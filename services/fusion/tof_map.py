@@ -1,0 +1,87 @@
+"""The ToF's pose-locked error, learnt online while vision gives an independent tip.
+
+The time-of-flight range is off by a few millimetres that depend on where the beam lands and
+how (3 mm across poses, 0.4 mm over repeats of one pose): a single offset b_rho follows it
+while the junction is in view, but once vision is lost b_rho is held at the value of the last
+pose and the depth takes the difference between poses. `TofMap` keeps, for the poses visited
+with vision, the range error against the filter's geometric prediction (grouped into short
+bins), and gives for a pose the kernel-weighted mean of the errors recorded near it, shrunk
+towards the held b_rho where few were recorded. It is append-only in time so that a rewind
+only has to cut its tail.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class TofMap:
+    """Range errors e [m] at poses (R (3, 3), p (3,)), binned every `bin_ns`, kept `window_ns`."""
+
+    def __init__(self, sigma_deg: float, sigma_mm: float, bin_ms: float, window_s: float, prior_weight: float):
+        # |R_i - R|_F^2 ~ 2 theta^2: the orientation part of the distance is theta^2 / sigma^2
+        self._wr = 1.0 / (2.0 * math.radians(sigma_deg) ** 2)
+        self._wp = 1.0 / (sigma_mm * 1e-3) ** 2
+        self.bin_ns = int(bin_ms * 1e6)
+        self.window_ns = int(window_s * 1e9)
+        self.prior_weight = float(prior_weight)
+        self._cap = 1024
+        self._K = np.empty((self._cap, 12))
+        self._e = np.empty(self._cap)
+        self._t = np.empty(self._cap, np.int64)  # last sample time of each bin
+        self._n = 0
+        self._lo = 0  # entries before this are older than the window
+        self._pending: list[tuple[int, np.ndarray, float]] = []
+
+    def __len__(self) -> int:
+        return self._n - self._lo
+
+    def add(self, t_ns: int, R: np.ndarray, p: np.ndarray, e: float) -> None:
+        if self._pending and t_ns // self.bin_ns != self._pending[0][0] // self.bin_ns:
+            self._flush()
+        self._pending.append((int(t_ns), np.concatenate([R.ravel(), p]), float(e)))
+
+    def _flush(self) -> None:
+        pend = self._pending
+        self._pending = []
+        if self._n == self._cap:
+            keep = self._n - self._lo
+            if keep > self._cap // 2:
+                self._cap *= 2
+                for name in ("_K", "_e", "_t"):
+                    old = getattr(self, name)
+                    new = np.empty((self._cap, *old.shape[1:]), old.dtype)
+                    new[:keep] = old[self._lo : self._n]
+                    setattr(self, name, new)
+            else:
+                self._K[:keep] = self._K[self._lo : self._n]
+                self._e[:keep] = self._e[self._lo : self._n]
+                self._t[:keep] = self._t[self._lo : self._n]
+            self._n, self._lo = keep, 0
+        i = self._n
+        self._lo += int(np.searchsorted(self._t[self._lo : self._n], pend[-1][0] - 2 * self.window_ns))
+        self._K[i] = np.mean([k for _, k, _ in pend], axis=0)
+        self._e[i] = sum(e for _, _, e in pend) / len(pend)
+        self._t[i] = pend[-1][0]
+        self._n += 1
+
+    def truncate(self, t_ns: int) -> None:
+        """Forget what was added after t_ns (a rewind to t_ns replays it)."""
+        self._pending = [x for x in self._pending if x[0] <= t_ns]
+        n = int(np.searchsorted(self._t[self._lo : self._n], t_ns, side="right")) + self._lo
+        self._n = max(n, self._lo)  # a bin that straddles t_ns goes whole
+
+    def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> float:
+        """The range error expected at (R, p): the errors recorded near it, shrunk to `prior`."""
+        lo = self._lo + int(np.searchsorted(self._t[self._lo : self._n], t_ns - self.window_ns))
+        if lo >= self._n:
+            return prior
+        K = self._K[lo : self._n]
+        dR = K[:, :9] - R.ravel()
+        dp = K[:, 9:] - p
+        d2 = self._wr * np.einsum("ij,ij->i", dR, dR) + self._wp * np.einsum("ij,ij->i", dp, dp)
+        w = np.exp(-0.5 * d2)
+        sw = float(w.sum())
+        return (float(w @ self._e[lo : self._n]) + self.prior_weight * prior) / (sw + self.prior_weight)

@@ -1,0 +1,86 @@
+"""The ToF's pose-locked error map: what it predicts near and far from recorded poses, its
+shrinkage to the held offset, its window, and that a rewind leaves it as if the discarded
+samples had never come."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from services.fusion.tof_map import TofMap
+from tiplog.geometry import so3_exp
+
+P0 = np.array([0.7, 0.0, 0.18])
+
+
+def _map(**kw) -> TofMap:
+    args = dict(sigma_deg=1.0, sigma_mm=6.0, bin_ms=50.0, window_s=120.0, prior_weight=2.0) | kw
+    return TofMap(**args)
+
+
+def _roll(deg: float) -> np.ndarray:
+    return so3_exp(np.array([0.0, 0.0, math.radians(deg)]))
+
+
+def _fill(m: TofMap, t0_ns: int, seconds: float, roll_deg: float, err_m: float) -> int:
+    """ToF samples at 100 Hz at one pose, each err_m off; returns the next time."""
+    t = t0_ns
+    for _ in range(int(seconds * 100)):
+        m.add(t, _roll(roll_deg), P0, err_m)
+        t += 10_000_000
+    return t
+
+
+def test_near_a_recorded_pose_it_gives_that_pose_error_and_far_from_it_the_prior():
+    m = _map()
+    assert m.predict(0, _roll(0.0), P0, prior=0.001) == 0.001  # nothing recorded yet
+    t = _fill(m, 0, 2.0, 0.0, 0.004)
+    t = _fill(m, t, 2.0, 5.0, -0.002)
+    assert len(m) >= 70  # 50 ms bins over 4 s
+    assert m.predict(t, _roll(0.0), P0, prior=0.0) == pytest.approx(0.004, rel=0.1)
+    assert m.predict(t, _roll(5.0), P0, prior=0.0) == pytest.approx(-0.002, rel=0.1)
+    assert m.predict(t, _roll(20.0), P0, prior=0.001) == pytest.approx(0.001, abs=1e-6)
+    far = P0 + np.array([0.0, 0.0, 0.05])  # 50 mm deeper: another part of the target
+    assert m.predict(t, _roll(0.0), far, prior=0.001) == pytest.approx(0.001, abs=1e-6)
+    # between the two: a blend, shrunk towards the prior where few samples are near
+    mid = m.predict(t, _roll(2.5), P0, prior=0.0)
+    assert -0.002 < mid < 0.004
+
+
+def test_entries_older_than_the_window_are_not_used():
+    m = _map(window_s=5.0)
+    t = _fill(m, 0, 2.0, 0.0, 0.004)
+    assert m.predict(t, _roll(0.0), P0, prior=0.0) == pytest.approx(0.004, rel=0.1)
+    t = _fill(m, t + 10_000_000_000, 1.0, 30.0, 0.0)  # 10 s later, elsewhere
+    assert m.predict(t, _roll(0.0), P0, prior=0.0) == 0.0
+
+
+def test_a_rewind_forgets_what_came_after_it():
+    rng = np.random.default_rng(3)
+    poses = [(rng.uniform(-3, 3), rng.normal(size=3) * 0.003, rng.normal() * 0.003) for _ in range(400)]
+    once, rewound = _map(), _map()
+    for k, (roll, dp, e) in enumerate(poses):
+        t = k * 10_000_000
+        once.add(t, _roll(roll), P0 + dp, e)
+        rewound.add(t, _roll(roll), P0 + dp, e)
+    t_cut = 250 * 10_000_000
+    # the rewound map takes other samples after t_cut, then rewinds to t_cut and takes the same
+    other = _map()
+    for k, (roll, dp, e) in enumerate(poses[:251]):
+        other.add(k * 10_000_000, _roll(roll), P0 + dp, e)
+    for k in range(251, 300):  # at the poses that will come again, 50 mm off
+        roll, dp, _ = poses[k]
+        other.add(k * 10_000_000, _roll(roll), P0 + dp, 0.05)
+    other.truncate(t_cut)
+    for k in range(251, 400):
+        roll, dp, e = poses[k]
+        other.add(k * 10_000_000, _roll(roll), P0 + dp, e)
+    q = [(_roll(r), P0 + d) for r, d, _ in poses[::37]]
+    a = [once.predict(400 * 10_000_000, R, p, 0.0) for R, p in q]
+    b = [other.predict(400 * 10_000_000, R, p, 0.0) for R, p in q]
+    # the bin that straddles the cut is dropped whole: at most that bin differs
+    assert np.allclose(a, b, atol=2e-4)
+    assert not np.allclose(a, [0.0] * len(a))
+    assert all(abs(x) < 0.02 for x in b)  # nothing of the discarded 50 mm errors is left
