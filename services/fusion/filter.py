@@ -307,11 +307,15 @@ class TrackingFilter:
                 t, R, e = s.t_ns, s.R.copy(), range_m - (rho - s.brho)
                 p = s.p.copy()
             else:
-                rho += tmap.predict(s.t_ns, s.R, s.p, s.brho) - s.brho
+                c, weight = tmap.predict(s.t_ns, s.R, s.p, s.brho)
+                rho += c - s.brho
         y = np.array([range_m - rho])
         ok = self._update(s, H, y, self._tof_r if free else self._tof_r_held, self.prm.gate_chi2_1, "tof")
-        if ok and tmap is not None and free:
-            tmap.add(t, R, p, e)
+        if ok and tmap is not None:
+            if free:
+                tmap.add(t, R, p, e)
+            elif weight >= tmap.prior_weight:  # mostly the map's, not the held b_rho
+                _bump(s.counts, "updates:tof_mapped")
         return ok
 
     def _clamp_depth(self, s: State) -> None:

@@ -73,15 +73,16 @@ class TofMap:
         n = int(np.searchsorted(self._t[self._lo : self._n], t_ns, side="right")) + self._lo
         self._n = max(n, self._lo)  # a bin that straddles t_ns goes whole
 
-    def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> float:
-        """The range error expected at (R, p): the errors recorded near it, shrunk to `prior`."""
+    def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> tuple[float, float]:
+        """(the range error expected at (R, p): the errors recorded near it, shrunk to `prior`;
+        the kernel weight of those errors, in bins at the pose itself)."""
         lo = self._lo + int(np.searchsorted(self._t[self._lo : self._n], t_ns - self.window_ns))
         if lo >= self._n:
-            return prior
+            return prior, 0.0
         K = self._K[lo : self._n]
         dR = K[:, :9] - R.ravel()
         dp = K[:, 9:] - p
         d2 = self._wr * np.einsum("ij,ij->i", dR, dR) + self._wp * np.einsum("ij,ij->i", dp, dp)
         w = np.exp(-0.5 * d2)
         sw = float(w.sum())
-        return (float(w @ self._e[lo : self._n]) + self.prior_weight * prior) / (sw + self.prior_weight)
+        return (float(w @ self._e[lo : self._n]) + self.prior_weight * prior) / (sw + self.prior_weight), sw

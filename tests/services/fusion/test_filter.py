@@ -186,6 +186,7 @@ def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
         for _ in range(200):
             f.update_tof(held, rho + 0.004)
         moved[use_map] = abs(float(held.R[:, 2] @ (held.p - f.rcm)) - L0)
+        assert held.counts.get("updates:tof_mapped", 0) == (200 if use_map else 0)
     assert moved[True] < 0.25 * moved[False] and moved[False] > 0.15e-3, moved
 
 

@@ -35,26 +35,27 @@ def _fill(m: TofMap, t0_ns: int, seconds: float, roll_deg: float, err_m: float) 
 
 def test_near_a_recorded_pose_it_gives_that_pose_error_and_far_from_it_the_prior():
     m = _map()
-    assert m.predict(0, _roll(0.0), P0, prior=0.001) == 0.001  # nothing recorded yet
+    assert m.predict(0, _roll(0.0), P0, prior=0.001) == (0.001, 0.0)  # nothing recorded yet
     t = _fill(m, 0, 2.0, 0.0, 0.004)
     t = _fill(m, t, 2.0, 5.0, -0.002)
     assert len(m) >= 70  # 50 ms bins over 4 s
-    assert m.predict(t, _roll(0.0), P0, prior=0.0) == pytest.approx(0.004, rel=0.1)
-    assert m.predict(t, _roll(5.0), P0, prior=0.0) == pytest.approx(-0.002, rel=0.1)
-    assert m.predict(t, _roll(20.0), P0, prior=0.001) == pytest.approx(0.001, abs=1e-6)
+    assert m.predict(t, _roll(0.0), P0, prior=0.0)[0] == pytest.approx(0.004, rel=0.1)
+    assert m.predict(t, _roll(5.0), P0, prior=0.0)[0] == pytest.approx(-0.002, rel=0.1)
+    assert m.predict(t, _roll(20.0), P0, prior=0.001)[0] == pytest.approx(0.001, abs=1e-6)
+    assert m.predict(t, _roll(20.0), P0, prior=0.001)[1] < 1e-6 < 30.0 < m.predict(t, _roll(0.0), P0, 0.0)[1]
     far = P0 + np.array([0.0, 0.0, 0.05])  # 50 mm deeper: another part of the target
-    assert m.predict(t, _roll(0.0), far, prior=0.001) == pytest.approx(0.001, abs=1e-6)
+    assert m.predict(t, _roll(0.0), far, prior=0.001)[0] == pytest.approx(0.001, abs=1e-6)
     # between the two: a blend, shrunk towards the prior where few samples are near
-    mid = m.predict(t, _roll(2.5), P0, prior=0.0)
+    mid = m.predict(t, _roll(2.5), P0, prior=0.0)[0]
     assert -0.002 < mid < 0.004
 
 
 def test_entries_older_than_the_window_are_not_used():
     m = _map(window_s=5.0)
     t = _fill(m, 0, 2.0, 0.0, 0.004)
-    assert m.predict(t, _roll(0.0), P0, prior=0.0) == pytest.approx(0.004, rel=0.1)
+    assert m.predict(t, _roll(0.0), P0, prior=0.0)[0] == pytest.approx(0.004, rel=0.1)
     t = _fill(m, t + 10_000_000_000, 1.0, 30.0, 0.0)  # 10 s later, elsewhere
-    assert m.predict(t, _roll(0.0), P0, prior=0.0) == 0.0
+    assert m.predict(t, _roll(0.0), P0, prior=0.0)[0] == 0.0
 
 
 def test_a_rewind_forgets_what_came_after_it():
@@ -78,8 +79,8 @@ def test_a_rewind_forgets_what_came_after_it():
         roll, dp, e = poses[k]
         other.add(k * 10_000_000, _roll(roll), P0 + dp, e)
     q = [(_roll(r), P0 + d) for r, d, _ in poses[::37]]
-    a = [once.predict(400 * 10_000_000, R, p, 0.0) for R, p in q]
-    b = [other.predict(400 * 10_000_000, R, p, 0.0) for R, p in q]
+    a = [once.predict(400 * 10_000_000, R, p, 0.0)[0] for R, p in q]
+    b = [other.predict(400 * 10_000_000, R, p, 0.0)[0] for R, p in q]
     # the bin that straddles the cut is dropped whole: at most that bin differs
     assert np.allclose(a, b, atol=2e-4)
     assert not np.allclose(a, [0.0] * len(a))
