@@ -113,6 +113,9 @@ class Params:
         for name in ("rcm_every", "alpha_window"):
             if int(getattr(self, name)) < 1:
                 raise ParamsError(f"fusion parameter {name}: must be >= 1")
+        for name in ("tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms"):
+            if not getattr(self, name) > 0:
+                raise ParamsError(f"fusion parameter {name}: must be > 0 (got {getattr(self, name)})")
         if self.max_age_ms > self.history_ms:
             raise ParamsError("fusion parameter max_age_ms: must not exceed history_ms")
 

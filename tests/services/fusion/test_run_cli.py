@@ -50,6 +50,8 @@ def test_bad_inputs_one_line_exit_2(tmp_path, capsys, session, estimate):
     bad = tmp_path / "p.yaml"
     bad.write_text("tof_sigma: 3\n")
     _fails(capsys, ["fusion", "run", str(session), "--out", out, "--params", str(bad)], "tof_sigma")
+    bad.write_text("tof_map_sigma_deg: 0\n")  # a zero kernel width would divide by zero
+    _fails(capsys, ["fusion", "run", str(session), "--out", out, "--params", str(bad)], "tof_map_sigma_deg", "> 0")
     nocal = tmp_path / "nocal.mcap"
     rewrite(session, nocal, lambda t: True, lambda n: n == "session")
     _fails(capsys, ["fusion", "run", str(nocal), "--out", out], "no calibration")
