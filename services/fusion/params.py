@@ -75,8 +75,8 @@ class Params:
     tof_map_bin_ms: float = 50.0
     tof_map_window_s: float = 120.0
     tof_map_prior_weight: float = 2.0
-    vision_plane_sigma_deg: float = 0.4
-    vision_offset_sigma_mm: float = 0.25
+    vision_plane_sigma_deg: float = 0.15
+    vision_offset_sigma_mm: float = 0.4
     vision_ray_sigma_mm: float = 1.0
     trocar_gate_mm: float = 3.5
     gated_out_tip: bool = True  # use the tip (not the axis) of frames that fail the trocar gate

@@ -257,7 +257,9 @@ def test_disagreeing_frames_do_not_reacquire():
     _frames(f, bad, [_obs(f.c, R, p, tilt_rad=math.radians(t)) for t in tilts])
     assert bad.counts.get("updates:reacquire", 0) == 0
     assert bad.counts.get("rejected:vision_axis:trocar_gate", 0) == 0
-    assert np.linalg.norm(bad.p - p) > 6e-3
+    # not moved onto vision (a re-acquisition leaves it within 1 mm, as above); the frames' tips
+    # still pull it a little from its 7 mm off
+    assert np.linalg.norm(bad.p - p) > 5e-3
 
 
 def test_without_vision_the_tip_stays_at_a_physical_depth():
