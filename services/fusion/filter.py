@@ -304,8 +304,7 @@ class TrackingFilter:
         tmap = self.tof_map
         if tmap is not None:
             if free:
-                t, R, e = s.t_ns, s.R.copy(), range_m - (rho - s.brho)
-                p = s.p.copy()
+                t, key, e = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
             else:
                 c, weight = tmap.predict(s.t_ns, s.R, s.p, s.brho)
                 rho += c - s.brho
@@ -313,7 +312,7 @@ class TrackingFilter:
         ok = self._update(s, H, y, self._tof_r if free else self._tof_r_held, self.prm.gate_chi2_1, "tof")
         if ok and tmap is not None:
             if free:
-                tmap.add(t, R, p, e)
+                tmap.add(t, key, e)
             elif weight >= tmap.prior_weight:  # mostly the map's, not the held b_rho
                 _bump(s.counts, "updates:tof_mapped")
         return ok

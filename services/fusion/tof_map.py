@@ -38,10 +38,16 @@ class TofMap:
     def __len__(self) -> int:
         return self._n - self._lo
 
-    def add(self, t_ns: int, R: np.ndarray, p: np.ndarray, e: float) -> None:
+    @staticmethod
+    def key(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """A pose as the map stores it (a copy: take it before an update moves the state)."""
+        return np.concatenate((R.ravel(), p))
+
+    def add(self, t_ns: int, key: np.ndarray, e: float) -> None:
+        """The range error e [m] at the pose `key` (from `key()`), at time t_ns."""
         if self._pending and t_ns // self.bin_ns != self._pending[0][0] // self.bin_ns:
             self._flush()
-        self._pending.append((int(t_ns), np.concatenate([R.ravel(), p]), float(e)))
+        self._pending.append((int(t_ns), key, float(e)))
 
     def _flush(self) -> None:
         pend = self._pending
@@ -62,7 +68,10 @@ class TofMap:
             self._n, self._lo = keep, 0
         i = self._n
         self._lo += int(np.searchsorted(self._t[self._lo : self._n], pend[-1][0] - 2 * self.window_ns))
-        self._K[i] = np.mean([k for _, k, _ in pend], axis=0)
+        k = pend[0][1].copy()
+        for _, k1, _ in pend[1:]:
+            k += k1
+        self._K[i] = k / len(pend)
         self._e[i] = sum(e for _, _, e in pend) / len(pend)
         self._t[i] = pend[-1][0]
         self._n += 1
