@@ -22,9 +22,9 @@ import math
 import numpy as np
 
 from services.fusion import kernels
-from services.fusion.tof_map import TofMap
 from services.fusion.init import closest_params, initial_rotation, perp_basis
 from services.fusion.params import SENSORS, Params
+from services.fusion.tof_map import TofMap
 from tiplog.calibration import Calibration
 
 G_BASE = np.array([0.0, 0.0, -9.80665])
@@ -86,8 +86,10 @@ def _bump(d: dict, key: str, by: float = 1.0) -> None:
 
 
 class TrackingFilter:
-    """Stateless maths over a `State`: every method takes the state and returns/mutates it, so
-    the runner can snapshot and rewind. `sensors` switches streams off (ablation)."""
+    """Maths over a `State`: every method takes the state and returns/mutates it, so the runner
+    can snapshot and rewind. The one thing kept here is the ToF pose map (`tof_map`), which only
+    grows in time; the runner cuts its tail when it rewinds. `sensors` switches streams off
+    (ablation)."""
 
     def __init__(self, calib: Calibration, params: Params, sensors: frozenset[str] = SENSORS):
         self.c = calib
@@ -132,7 +134,9 @@ class TrackingFilter:
         self._alpha_min_span_s = p.alpha_min_span_ms * 1e-3
         self._max_speed2 = p.max_speed_mps**2
         self.tof_map = (
-            TofMap(p.tof_map_sigma_deg, p.tof_map_sigma_mm, p.tof_map_bin_ms, p.tof_map_window_s, p.tof_map_prior_weight)
+            TofMap(
+                p.tof_map_sigma_deg, p.tof_map_sigma_mm, p.tof_map_bin_ms, p.tof_map_window_s, p.tof_map_prior_weight
+            )
             if p.tof_map and self.tof and self.vision
             else None
         )
