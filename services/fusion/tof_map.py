@@ -27,16 +27,17 @@ class TofMap:
         self.bin_ns = int(bin_ms * 1e6)
         self.window_ns = int(window_s * 1e9)
         self.prior_weight = float(prior_weight)
-        self._cap = 1024
-        self._K = np.empty((self._cap, 12))
-        self._e = np.empty(self._cap)
-        self._t = np.empty(self._cap, np.int64)  # last sample time of each bin
+        # bins are distinct, so the newest `keep` entries span at least twice the window: a
+        # query a rewind's length in the past still finds all it needs after a compaction
+        self._keep = 2 * (self.window_ns // max(self.bin_ns, 1)) + 4
+        self._K = np.empty((2 * self._keep, 12))
+        self._e = np.empty(2 * self._keep)
+        self._t = np.empty(2 * self._keep, np.int64)  # last sample time of each bin
         self._n = 0
-        self._lo = 0  # entries before this are older than the window
         self._pending: list[tuple[int, np.ndarray, float]] = []
 
     def __len__(self) -> int:
-        return self._n - self._lo
+        return self._n
 
     @staticmethod
     def key(R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -52,22 +53,13 @@ class TofMap:
     def _flush(self) -> None:
         pend = self._pending
         self._pending = []
-        if self._n == self._cap:
-            keep = self._n - self._lo
-            if keep > self._cap // 2:
-                self._cap *= 2
-                for name in ("_K", "_e", "_t"):
-                    old = getattr(self, name)
-                    new = np.empty((self._cap, *old.shape[1:]), old.dtype)
-                    new[:keep] = old[self._lo : self._n]
-                    setattr(self, name, new)
-            else:
-                self._K[:keep] = self._K[self._lo : self._n]
-                self._e[:keep] = self._e[self._lo : self._n]
-                self._t[:keep] = self._t[self._lo : self._n]
-            self._n, self._lo = keep, 0
+        if self._n == len(self._t):  # full: keep the newest half (nothing grows)
+            k = self._keep
+            self._K[:k] = self._K[-k:]
+            self._e[:k] = self._e[-k:]
+            self._t[:k] = self._t[-k:]
+            self._n = k
         i = self._n
-        self._lo += int(np.searchsorted(self._t[self._lo : self._n], pend[-1][0] - 2 * self.window_ns))
         k = pend[0][1].copy()
         for _, k1, _ in pend[1:]:
             k += k1
@@ -79,13 +71,12 @@ class TofMap:
     def truncate(self, t_ns: int) -> None:
         """Forget what was added after t_ns (a rewind to t_ns replays it)."""
         self._pending = [x for x in self._pending if x[0] <= t_ns]
-        n = int(np.searchsorted(self._t[self._lo : self._n], t_ns, side="right")) + self._lo
-        self._n = max(n, self._lo)  # a bin that straddles t_ns goes whole
+        self._n = int(np.searchsorted(self._t[: self._n], t_ns, side="right"))  # a straddling bin goes whole
 
     def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> tuple[float, float]:
         """(the range error expected at (R, p): the errors recorded near it, shrunk to `prior`;
         the kernel weight of those errors, in bins at the pose itself)."""
-        lo = self._lo + int(np.searchsorted(self._t[self._lo : self._n], t_ns - self.window_ns))
+        lo = int(np.searchsorted(self._t[: self._n], t_ns - self.window_ns))
         if lo >= self._n:
             return prior, 0.0
         K = self._K[lo : self._n]

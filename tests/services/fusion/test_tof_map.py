@@ -84,3 +84,29 @@ def test_a_rewind_forgets_what_came_after_it():
     assert np.allclose(a, b, atol=2e-4)
     assert not np.allclose(a, [0.0] * len(a))
     assert all(abs(x) < 0.02 for x in b)  # nothing of the discarded 50 mm errors is left
+
+
+def test_a_full_map_keeps_what_its_window_needs():
+    """Many windows' worth of samples (the map compacts itself many times): a prediction is
+    still the kernel mean over exactly the bins within the window."""
+    m = _map(window_s=0.5, prior_weight=0.0)
+    rng = np.random.default_rng(5)
+    rolls = np.cumsum(rng.normal(size=2000) * 0.2)
+    for k, roll in enumerate(rolls):
+        m.add(k * 10_000_000, m.key(_roll(roll), P0), 0.001 * math.sin(math.radians(roll) * 20))
+    assert len(m) < 200  # bounded, though 400 bins were recorded
+    t = 1999 * 10_000_000
+    # the bins within the window, recomputed from what was added: 50 ms bins of 5 samples, the
+    # last one still open (it is entered when the next bin starts)
+    bins = [(b, range(b * 5, b * 5 + 5)) for b in range(399)]
+    keep = [rolls[list(idx)] for b, idx in bins if (b * 5 + 4) * 10_000_000 >= t - 500_000_000]
+    q = _roll(rolls[-1])
+    num = den = 0.0
+    for rs in keep:
+        R = np.mean([_roll(r) for r in rs], axis=0)
+        e = np.mean([0.001 * math.sin(math.radians(r) * 20) for r in rs])
+        d2 = np.sum((R - q) ** 2) / (2 * math.radians(1.0) ** 2)
+        w = math.exp(-0.5 * d2)
+        num, den = num + w * e, den + w
+    assert len(keep) < len(m)  # older bins are kept but not used
+    assert m.predict(t, q, P0, 0.0)[0] == pytest.approx(num / den, rel=1e-9)
