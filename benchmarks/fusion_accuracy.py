@@ -6,6 +6,8 @@ Subsets and degradations (`third`, `noise5`, `blackout1/3/10`, `junction_hidden`
 the sweeps and the teleoperated blocks, so sixteen per session is the harsher reading). The
 filter never sees the truth; scoring uses `services.fusion.evaluation` (first 20 % of each
 block excluded). `tiplog evaluate SESSION --ablations` runs the same variants in parallel.
+`smoothed` is the full fusion through the RTS smoother, as an archive gets it; `smoothed:NAME`
+smooths any subset or degradation (`smoothed:blackout10`: what 10 s blackouts cost an archive).
 
     python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...]
         [--calibration FILE] [--json OUT]
@@ -23,19 +25,29 @@ import numpy as np
 
 from services.fusion.ablation import DEGRADED, SUBSETS, run_variant, variant_inputs
 from services.fusion.evaluation import Estimate, block_windows, load_truth, score_continuous
-from services.fusion.params import Params
+from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.smoother import smooth
 from tiplog.calibration import Calibration
 from tiplog.mcap_io import read_metadata
 
-SMOOTH = "smoothed"  # full fusion through the RTS smoother
+SMOOTH = "smoothed"  # full fusion through the RTS smoother; `smoothed:VARIANT` smooths that variant
+
+
+def split_variant(v: str) -> tuple[str, bool]:
+    """(the ablation variant, whether it is smoothed) for a --variants entry."""
+    if v == SMOOTH:
+        return "full", True
+    base = v.removeprefix(f"{SMOOTH}:")
+    return base, base != v
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("sessions", nargs="+", help="bench sessions (sweeps, teleop, demo)")
-    ap.add_argument("--variants", default="full", help=f"comma list of {', '.join([*SUBSETS, *DEGRADED, SMOOTH])}")
+    ap.add_argument(
+        "--variants", default="full", help=f"comma list of {', '.join([*SUBSETS, *DEGRADED, SMOOTH])}, smoothed:NAME"
+    )
     ap.add_argument("--params", help="parameter YAML (default: built-in)")
     ap.add_argument(
         "--calibration", help="calibration YAML for every session (default: each one's as-calibrated metadata)"
@@ -44,6 +56,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     params = Params.load_yaml(args.params) if args.params else Params()
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    for v in variants:
+        base, _ = split_variant(v)
+        if base not in SUBSETS and base not in DEGRADED:
+            ap.error(f"--variants: unknown variant {v!r}")
     results = []
     for path in args.sessions:
         truth = load_truth(path)
@@ -55,10 +71,11 @@ def main(argv: list[str] | None = None) -> int:
         msgs = list(iter_inputs(Path(path), {}))
         blocks = block_windows(truth.trials)
         for v in variants:
-            use, sensors = (msgs, SUBSETS["full"]) if v == SMOOTH else variant_inputs(v, msgs, blocks, seed=0)
-            if v == SMOOTH:
+            base, smoothed = split_variant(v)
+            use, sensors = variant_inputs(base, msgs, blocks, seed=0)
+            if smoothed:
                 t0 = time.process_time()
-                sm = smooth(calib, params, use)
+                sm = smooth(calib, params, use, parse_sensors(sensors))
                 cpu = time.process_time() - t0
                 est = Estimate(np.array([s.stamp_ns for s in sm], np.int64), np.array([s.p_tip_base_m for s in sm]))
                 diag = {"resets": 0}
