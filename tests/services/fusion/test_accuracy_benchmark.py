@@ -23,3 +23,20 @@ def test_sixteen_separate_blackouts_inside_the_blocks(length_s):
 def test_a_block_too_short_for_its_share_gets_fewer():
     spans = _blackout_spans([("teleop1", 0, 25 * S)], 10 * S)
     assert len(spans) == 2 and spans[0][1] <= spans[1][0]
+
+
+def test_smoothed_variants_name_the_variant_they_smooth():
+    from benchmarks.fusion_accuracy import split_variant
+
+    assert split_variant("smoothed") == ("full", True)
+    assert split_variant("smoothed:blackout10") == ("blackout10", True)
+    assert split_variant("blackout10") == ("blackout10", False)
+
+
+def test_an_unknown_variant_is_refused_before_any_session_is_read(tmp_path, capsys):
+    from benchmarks.fusion_accuracy import main
+
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "absent.mcap"), "--variants", "full,smoothed:blackout7"])
+    assert e.value.code == 2
+    assert "unknown variant 'smoothed:blackout7'" in capsys.readouterr().err
