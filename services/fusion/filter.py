@@ -63,11 +63,15 @@ class State:
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
+        "t_init_ns",
     )  # fmt: skip
 
     def copy(self) -> State:
         s = State.__new__(State)
-        for k in ("t_ns", "brho", "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "reacq"):
+        for k in (
+            "t_ns", "brho", "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "reacq",
+            "t_init_ns",
+        ):  # fmt: skip
             setattr(s, k, getattr(self, k))
         for k in ("p", "v", "R", "bg", "ba", "P", "w_imu", "f_imu", "alpha_tool"):
             setattr(s, k, getattr(self, k).copy())
@@ -130,6 +134,7 @@ class TrackingFilter:
         self._Q_held = Q.copy()  # while b_rho is held its uncertainty is too: the ToF stays informative
         self._Q_held[IBR] = 0.0
         self._brho_window_ns = p.tof_offset_window_ms * 1e6
+        self._map_settle_ns = p.tof_map_settle_ms * 1e6
         self._imu_gap_s = p.imu_gap_ms * 1e-3
         self._alpha_min_span_s = p.alpha_min_span_ms * 1e-3
         self._max_speed2 = p.max_speed_mps**2
@@ -145,7 +150,7 @@ class TrackingFilter:
     def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
         p = self.prm
         s = State()
-        s.t_ns = int(t_ns)
+        s.t_ns = s.t_init_ns = int(t_ns)
         s.R = R.copy()
         s.p = self.rcm + depth_m * R[:, 2]
         s.v = np.zeros(3)
@@ -306,18 +311,19 @@ class TrackingFilter:
             return False
         free = self.brho_free(s)
         tmap = self.tof_map
+        record = None
         if tmap is not None:
-            if free:
-                t, key, e = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
-            else:
+            if not free:
                 c, weight = tmap.predict(s.t_ns, s.R, s.p, s.brho)
                 rho += c - s.brho
+            elif s.t_ns - s.t_init_ns >= self._map_settle_ns:  # not from a state still converging
+                record = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
         y = np.array([range_m - rho])
         ok = self._update(s, H, y, self._tof_r if free else self._tof_r_held, self.prm.gate_chi2_1, "tof")
         if ok and tmap is not None:
-            if free:
-                tmap.add(t, key, e)
-            elif weight >= tmap.prior_weight:  # mostly the map's, not the held b_rho
+            if record is not None:
+                tmap.add(*record)
+            elif not free and weight >= tmap.prior_weight:  # mostly the map's, not the held b_rho
                 _bump(s.counts, "updates:tof_mapped")
         return ok
 

@@ -75,6 +75,10 @@ class Params:
     tof_map_bin_ms: float = 50.0
     tof_map_window_s: float = 120.0
     tof_map_prior_weight: float = 2.0
+    # it records only from a state tracked this long since its (re)initialisation, not one
+    # still converging from a single frame (a runner's reset also forgets what the map took
+    # from the diverging state after its last vision tip)
+    tof_map_settle_ms: float = 1000.0
     vision_plane_sigma_deg: float = 0.15
     vision_offset_sigma_mm: float = 0.4
     vision_ray_sigma_mm: float = 1.0

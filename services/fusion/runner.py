@@ -297,6 +297,8 @@ class FusionRunner:
                 f.on_gyro(s, t, payload)
                 why = f.diverged(s)
                 if why is not None:
+                    if f.tof_map is not None:  # what it learnt since the last vision tip came from a state going wrong
+                        f.tof_map.truncate(s.last_tip_ns)
                     tr.carried.update(s.counts)
                     tr.carried_nis.update(s.nis)
                     tr.state = None

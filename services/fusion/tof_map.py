@@ -68,6 +68,11 @@ class TofMap:
         self._t[i] = pend[-1][0]
         self._n += 1
 
+    def entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(bin times (n,), pose keys (n, 12), range errors (n,)) held now, oldest first: copies."""
+        n = self._n
+        return self._t[:n].copy(), self._K[:n].copy(), self._e[:n].copy()
+
     def truncate(self, t_ns: int) -> None:
         """Forget what was added after t_ns (a rewind to t_ns replays it)."""
         self._pending = [x for x in self._pending if x[0] <= t_ns]

@@ -138,6 +138,26 @@ def test_divergence_resets_from_vision(session):
     assert np.sqrt(np.mean(np.sum((p[end] - truth) ** 2, 1))) < 5e-3
 
 
+def test_a_reset_forgets_what_the_tof_map_learnt_from_the_diverging_state(session):
+    """The map records range errors against the filter's own pose; what it took from a state
+    going wrong (after the last vision tip it accepted) would bend the depth in later blackouts."""
+    msgs, calib, (tt, tip) = session
+    t_mid = msgs[len(msgs) // 3][2]
+    spoilt = []
+    for t, m, a in msgs:  # a gyro fault of 0.5 s: fast enough to go wrong before vision rejects it
+        if t == "device/gyro" and t_mid <= a < t_mid + 500_000_000:
+            m = copy.deepcopy(m)
+            m.rate_radps.z += 1.5
+        spoilt.append((t, m, a))
+    _, r = _run(spoilt, calib)
+    assert r.diagnostics()["resets"] >= 1
+    t, keys, _ = r.filt.tof_map.entries()
+    assert len(t) > 100
+    truth = np.stack([np.interp(t, tt, tip[:, j]) for j in range(3)], 1)
+    off = np.linalg.norm(keys[:, 9:12] - truth, axis=1)  # each entry's recorded tip against the truth
+    assert off.max() < 0.005, (off.max(), t[np.argmax(off)] - t_mid)
+
+
 def test_a_backlog_stamped_nanoseconds_apart_does_not_throw_the_tip(session):
     """A stalled host: nothing for 0.7 s, then the gateway stamps the backlog 1 ns apart (it
     never stamps a sample at or before the previous one). The lever arm's angular acceleration
