@@ -63,14 +63,14 @@ class State:
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
-        "t_init_ns",
+        "t_init_ns", "tof_last",
     )  # fmt: skip
 
     def copy(self) -> State:
         s = State.__new__(State)
         for k in (
             "t_ns", "brho", "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "reacq",
-            "t_init_ns",
+            "t_init_ns", "tof_last",
         ):  # fmt: skip
             setattr(s, k, getattr(self, k))
         for k in ("p", "v", "R", "bg", "ba", "P", "w_imu", "f_imu", "alpha_tool"):
@@ -135,6 +135,7 @@ class TrackingFilter:
         self._Q_held[IBR] = 0.0
         self._brho_window_ns = p.tof_offset_window_ms * 1e6
         self._map_settle_ns = p.tof_map_settle_ms * 1e6
+        self._tof_fresh_ns = 100e6  # the ToF range a junction is checked against: at most this old
         self._imu_gap_s = p.imu_gap_ms * 1e-3
         self._alpha_min_span_s = p.alpha_min_span_ms * 1e-3
         self._max_speed2 = p.max_speed_mps**2
@@ -176,6 +177,7 @@ class TrackingFilter:
         s.vis_reject_run = 0
         s.counts = {}
         s.nis = {}
+        s.tof_last = (-(1 << 62), 0.0)  # (t_ns, range_m) of the last ToF range applied
         s.reacq = ()  # (t_ns, phi_base (3,), dp_base_m (3,)) of frames gated out on innovation
         return s
 
@@ -320,12 +322,35 @@ class TrackingFilter:
                 record = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
         y = np.array([range_m - rho])
         ok = self._update(s, H, y, self._tof_r if free else self._tof_r_held, self.prm.gate_chi2_1, "tof")
+        if ok:
+            s.tof_last = (s.t_ns, range_m)
         if ok and tmap is not None:
             if record is not None:
                 tmap.add(*record)
             elif not free and weight >= tmap.prior_weight:  # mostly the map's, not the held b_rho
                 _bump(s.counts, "updates:tof_mapped")
         return ok
+
+    def _tip_disagrees_with_tof(self, s: State, u_c: np.ndarray, d: np.ndarray) -> bool:
+        """Whether the depth the junction ray implies on the present shaft line is further than
+        `vision_tip_tof_gate_mm` from the depth of the latest ToF range (only while b_rho is
+        free, so current). The labeler's gross junction errors (a wrong end of the shaft, 5-25
+        mm) pass the chi-square gate when the depth has grown uncertain between frames; the
+        ToF is the independent depth that tells them apart."""
+        gate = self.prm.vision_tip_tof_gate_mm * 1e-3
+        if gate <= 0 or not self.tof or not self.brho_free(s) or s.t_ns - s.tof_last[0] > self._tof_fresh_ns:
+            return False
+        c = self.c
+        m = c.tof_plane_normal_base
+        u = s.R[:, 2]
+        mu, mb = float(m @ u), float(m @ (s.R @ c.tof_beam_tool))
+        if abs(mu) < 0.2 or abs(mb) < 0.05:
+            return False
+        L_tof = (
+            c.tof_plane_h_m - float(m @ (self.rcm + s.R @ c.tof_origin_tool_m)) - (s.tof_last[1] - s.brho) * mb
+        ) / mu
+        L_vis = closest_params(self.rcm_cam, u_c, d)[0] + self.jp
+        return abs(L_vis - L_tof) > gate
 
     def _clamp_depth(self, s: State) -> None:
         """The tip back to the physical insertion range along the shaft (depth_min/max_m)."""
@@ -370,6 +395,8 @@ class TrackingFilter:
             u_c = A @ s.R[:, 2]
             if 1.0 - float(d @ u_c) ** 2 < prm.junction_min_sin2:
                 _bump(s.counts, "rejected:vision_tip:ill_conditioned")
+            elif self._tip_disagrees_with_tof(s, u_c, d):
+                _bump(s.counts, "rejected:vision_tip:tof_disagrees")
             else:
                 E = perp_basis(d)
                 EA = E @ A

@@ -82,6 +82,10 @@ class Params:
     vision_plane_sigma_deg: float = 0.15
     vision_offset_sigma_mm: float = 0.4
     vision_ray_sigma_mm: float = 1.0
+    # a junction whose depth is this far from the latest ToF range's (b_rho free) is refused:
+    # the labeler's gross errors (a wrong end of the shaft, 5-25 mm) otherwise pass the
+    # chi-square gate once the depth has grown uncertain between frames
+    vision_tip_tof_gate_mm: float = 12.0
     trocar_gate_mm: float = 3.5
     gated_out_tip: bool = True  # use the tip (not the axis) of frames that fail the trocar gate
     junction_min_sin2: float = 0.45

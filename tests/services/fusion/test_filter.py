@@ -163,6 +163,30 @@ def test_tof_weighs_more_while_it_is_the_only_depth():
     assert abs(depth["held"]) > 1.5 * abs(depth["free"]) > 0.0
 
 
+def test_a_junction_far_from_the_tof_depth_is_refused_while_the_offset_is_current():
+    """A gross junction error (the labeler on a wrong end of the shaft) is refused when the
+    latest ToF range puts the tip elsewhere; once b_rho is held (after a blackout) a junction
+    may move the depth whatever the ToF says."""
+    f, s, R, p = _run_static(3.0, np.zeros(3))
+    m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
+    rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+    u = R[:, 2]
+    s.P[0:3, 0:3] += 1e-4 * np.outer(u, u)  # 10 mm of depth uncertainty: the chi-square gate alone lets it in
+    held = s.copy()
+    held.last_tip_ns = held.t_ns - 3_000_000_000
+    for st in (s, held):
+        assert f.update_tof(st, rho + st.brho)
+        f.update_vision(st, _obs(f.c, R, p + 0.02 * u))  # the junction 20 mm deeper than it is
+    assert s.counts.get("rejected:vision_tip:tof_disagrees", 0) == 1
+    assert abs(float(u @ (s.p - p))) < 1e-3
+    assert held.counts.get("rejected:vision_tip:tof_disagrees", 0) == 0
+    assert float(u @ (held.p - p)) > 5e-3  # applied: nothing vetoed it
+    tips = s.counts["updates:vision_tip"]
+    f.update_vision(s, _obs(f.c, R, p + 0.004 * u))  # 4 mm: within what the ToF can tell
+    assert s.counts["updates:vision_tip"] == tips + 1
+    assert s.counts.get("rejected:vision_tip:tof_disagrees", 0) == 1
+
+
 def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
     """At this pose the range reads 4 mm long, learnt while b_rho was free; b_rho was then held
     at 0 (set where the ToF read true). Without vision, the ToF at this pose then leaves the
