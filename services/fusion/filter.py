@@ -67,14 +67,14 @@ class State:
     )  # fmt: skip
 
     def copy(self) -> State:
+        # written out, not looped over the slots: a snapshot is taken at every gyro sample
         s = State.__new__(State)
-        for k in (
-            "t_ns", "brho", "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "reacq",
-            "t_init_ns", "tof_last",
-        ):  # fmt: skip
-            setattr(s, k, getattr(self, k))
-        for k in ("p", "v", "R", "bg", "ba", "P", "w_imu", "f_imu", "alpha_tool"):
-            setattr(s, k, getattr(self, k).copy())
+        s.t_ns, s.brho, s.gyro_n, s.t_init_ns = self.t_ns, self.brho, self.gyro_n, self.t_init_ns
+        s.last_grav_ns, s.last_tip_ns, s.last_vision_ns = self.last_grav_ns, self.last_tip_ns, self.last_vision_ns
+        s.vis_reject_run, s.reacq, s.tof_last = self.vis_reject_run, self.reacq, self.tof_last
+        s.p, s.v, s.R, s.P = self.p.copy(), self.v.copy(), self.R.copy(), self.P.copy()
+        s.bg, s.ba = self.bg.copy(), self.ba.copy()
+        s.w_imu, s.f_imu, s.alpha_tool = self.w_imu.copy(), self.f_imu.copy(), self.alpha_tool.copy()
         s.w_prev = list(self.w_prev)
         s.counts = dict(self.counts)
         s.nis = dict(self.nis)

@@ -112,6 +112,21 @@ def _run_static(seconds: float, bias_imu: np.ndarray, seed: int = 1):
     return f, s, R, p
 
 
+def test_a_state_copy_carries_every_slot_and_shares_no_array():
+    """Rewinds restore snapshots: a slot copy() forgot would come back from the wrong time."""
+    from services.fusion.filter import State
+
+    _, s, _, _ = _run_static(0.5, np.zeros(3))
+    c = s.copy()
+    for name in State.__slots__:
+        a, b = getattr(s, name), getattr(c, name)
+        if isinstance(a, np.ndarray):
+            assert a is not b and np.array_equal(a, b), name
+        else:
+            assert a == b, name
+            assert not isinstance(a, (list, dict)) or a is not b, name
+
+
 def test_gyro_bias_and_tip_at_rest():
     bias = np.radians([0.08, -0.06, 0.05])  # about the 0.05 deg/s instability of the prior
     f, s, R, p = _run_static(20.0, bias)
