@@ -324,10 +324,9 @@ class TrackingFilter:
         ok = self._update(s, H, y, self._tof_r if free else self._tof_r_held, self.prm.gate_chi2_1, "tof")
         if ok:
             s.tof_last = (s.t_ns, range_m)
-        if ok and tmap is not None:
             if record is not None:
                 tmap.add(*record)
-            elif not free and weight >= tmap.prior_weight:  # mostly the map's, not the held b_rho
+            elif tmap is not None and not free and weight >= tmap.prior_weight:  # mostly the map's
                 _bump(s.counts, "updates:tof_mapped")
         return ok
 

@@ -31,6 +31,23 @@ def _arrays(samples):
     return np.array([s.stamp_ns for s in samples]), np.array([s.p_tip_base_m for s in samples])
 
 
+def _truth_at(t, tt, tip):
+    return np.stack([np.interp(t, tt, tip[:, j]) for j in range(3)], 1)
+
+
+def _gyro_fault(msgs, seconds: float, radps: float):
+    """(the inputs with `radps` added to the gyro's z for `seconds` from a third of the way in,
+    the fault's start)."""
+    t_mid = msgs[len(msgs) // 3][2]
+    spoilt = []
+    for t, m, a in msgs:
+        if t == "device/gyro" and t_mid <= a < t_mid + seconds * 1e9:
+            m = copy.deepcopy(m)
+            m.rate_radps.z += radps
+        spoilt.append((t, m, a))
+    return spoilt, t_mid
+
+
 def _run(msgs, calib, params=None, schedule="offline", rng=None):
     r = FusionRunner(calib, params or Params())
     out = []
@@ -58,7 +75,7 @@ def test_output_depends_only_on_inputs(session):
     assert np.all(np.diff(t0) > 0)  # each state exactly once, in order
     # and it tracks: tip within a few mm of the robot after the first seconds
     late = t0 > t0[0] + 3e9
-    truth = np.stack([np.interp(t0[late], tt, tip[:, j]) for j in range(3)], 1)
+    truth = _truth_at(t0[late], tt, tip)
     assert np.sqrt(np.mean(np.sum((p0[late] - truth) ** 2, 1))) < 4e-3
 
 
@@ -116,13 +133,7 @@ def test_corrupt_and_non_finite_inputs_never_reach_the_output(session):
 
 def test_divergence_resets_from_vision(session):
     msgs, calib, (tt, tip) = session
-    t_mid = msgs[len(msgs) // 3][2]
-    spoilt = []
-    for t, m, a in msgs:  # a 1 s gyro fault: 3 rad/s that never happened
-        if t == "device/gyro" and t_mid <= a < t_mid + 1_000_000_000:
-            m = copy.deepcopy(m)
-            m.rate_radps.z += 3.0
-        spoilt.append((t, m, a))
+    spoilt, _ = _gyro_fault(msgs, 1.0, 3.0)  # a 1 s gyro fault: 3 rad/s that never happened
     out, r = _run(spoilt, calib)
     d = r.diagnostics()
     assert d["resets"] >= 1, d
@@ -134,7 +145,7 @@ def test_divergence_resets_from_vision(session):
     t, p = _arrays(out)
     assert np.isfinite(p).all()
     end = t > t[-1] - 1.5e9  # recovered by the end
-    truth = np.stack([np.interp(t[end], tt, tip[:, j]) for j in range(3)], 1)
+    truth = _truth_at(t[end], tt, tip)
     assert np.sqrt(np.mean(np.sum((p[end] - truth) ** 2, 1))) < 5e-3
 
 
@@ -142,18 +153,12 @@ def test_a_reset_forgets_what_the_tof_map_learnt_from_the_diverging_state(sessio
     """The map records range errors against the filter's own pose; what it took from a state
     going wrong (after the last vision tip it accepted) would bend the depth in later blackouts."""
     msgs, calib, (tt, tip) = session
-    t_mid = msgs[len(msgs) // 3][2]
-    spoilt = []
-    for t, m, a in msgs:  # a gyro fault of 0.5 s: fast enough to go wrong before vision rejects it
-        if t == "device/gyro" and t_mid <= a < t_mid + 500_000_000:
-            m = copy.deepcopy(m)
-            m.rate_radps.z += 1.5
-        spoilt.append((t, m, a))
+    spoilt, t_mid = _gyro_fault(msgs, 0.5, 1.5)  # fast enough to go wrong before vision rejects it
     _, r = _run(spoilt, calib)
     assert r.diagnostics()["resets"] >= 1
     t, keys, _ = r.filt.tof_map.entries()
     assert len(t) > 100
-    truth = np.stack([np.interp(t, tt, tip[:, j]) for j in range(3)], 1)
+    truth = _truth_at(t, tt, tip)
     off = np.linalg.norm(keys[:, 9:12] - truth, axis=1)  # each entry's recorded tip against the truth
     assert off.max() < 0.005, (off.max(), t[np.argmax(off)] - t_mid)
 
@@ -180,7 +185,7 @@ def test_a_backlog_stamped_nanoseconds_apart_does_not_throw_the_tip(session):
         out_msgs.append((t, m, a))
     out, r = _run(out_msgs, calib)
     t, p = _arrays(out)
-    truth = np.stack([np.interp(t, tt, tip[:, j]) for j in range(3)], 1)
+    truth = _truth_at(t, tt, tip)
     err_mm = np.linalg.norm(p - truth, axis=1) * 1e3
     assert len(out) > 1000 and np.isfinite(p).all()
     assert err_mm.max() < 50.0, (err_mm.max(), r.diagnostics()["reset_reasons"])
@@ -196,7 +201,7 @@ def test_vision_before_the_device_streams_starts_sane(session):
     out, r = _run(late_device, calib)
     t, p = _arrays(out)
     assert len(out) > 1000
-    truth = np.stack([np.interp(t, tt, tip[:, j]) for j in range(3)], 1)
+    truth = _truth_at(t, tt, tip)
     err_mm = np.linalg.norm(p - truth, axis=1) * 1e3
     assert err_mm.max() < 30.0, (err_mm.max(), r.diagnostics()["resets"])
     assert r.diagnostics()["resets"] == 0
