@@ -112,6 +112,13 @@ def _run_static(seconds: float, bias_imu: np.ndarray, seed: int = 1):
     return f, s, R, p
 
 
+def _range(c: Calibration, R: np.ndarray, p: np.ndarray) -> float:
+    """The raw range [m] of the ray-plane model at the tool pose (R, p), written out here so the
+    tests do not lean on the filter's own kernel."""
+    m = c.tof_plane_normal_base
+    return float((c.tof_plane_h_m - m @ (p + R @ c.tof_origin_tool_m)) / (m @ (R @ c.tof_beam_tool)))
+
+
 def test_a_state_copy_carries_every_slot_and_shares_no_array():
     """Rewinds restore snapshots: a slot copy() forgot would come back from the wrong time."""
     from services.fusion.filter import State
@@ -152,8 +159,7 @@ def test_trocar_and_innovation_gates_reject_wrong_lines():
 
 def test_tof_offset_moves_only_after_an_independent_tip():
     f, s, R, p = _run_static(3.0, np.zeros(3))
-    m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
-    rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+    rho = _range(f.c, R, p)
     stale = s.copy()
     stale.last_tip_ns = stale.t_ns - 3_000_000_000  # last vision tip 3 s ago
     for _ in range(50):
@@ -165,8 +171,7 @@ def test_tof_offset_moves_only_after_an_independent_tip():
 
 def test_tof_weighs_more_while_it_is_the_only_depth():
     f, s, R, p = _run_static(3.0, np.zeros(3))
-    m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
-    rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+    rho = _range(f.c, R, p)
     held = s.copy()
     held.last_tip_ns = held.t_ns - 3_000_000_000
     assert f.prm.tof_sigma_held_mm < f.prm.tof_sigma_mm
@@ -183,8 +188,7 @@ def test_a_junction_far_from_the_tof_depth_is_refused_while_the_offset_is_curren
     latest ToF range puts the tip elsewhere; once b_rho is held (after a blackout) a junction
     may move the depth whatever the ToF says."""
     f, s, R, p = _run_static(3.0, np.zeros(3))
-    m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
-    rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+    rho = _range(f.c, R, p)
     u = R[:, 2]
     s.P[0:3, 0:3] += 1e-4 * np.outer(u, u)  # 10 mm of depth uncertainty: the chi-square gate alone lets it in
     held = s.copy()
@@ -210,8 +214,7 @@ def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
     for use_map in (True, False):
         f, s, R, p = _run_static(3.0, np.zeros(3))
         f = TrackingFilter(f.c, Params(tof_map=use_map))
-        m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
-        rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+        rho = _range(f.c, R, p)
         learn = s.copy()
         for k in range(100):
             learn.t_ns = s.t_ns + k * 10_000_000
@@ -234,8 +237,7 @@ def test_held_tof_offset_moves_through_no_other_update():
     ToF updates, but neither the RCM, the vision axis, gravity nor time moves it or its variance:
     before, a vision axis update carried the ToF's error into b_rho and the depth walked away."""
     f, s, R, p = _run_static(3.0, np.zeros(3))
-    m, o, b = f.c.tof_plane_normal_base, f.c.tof_origin_tool_m, f.c.tof_beam_tool
-    rho = (f.c.tof_plane_h_m - m @ (p + R @ o)) / (m @ (R @ b))
+    rho = _range(f.c, R, p)
     s.last_tip_ns = s.t_ns - 3_000_000_000
     b0, var0 = s.brho, s.P[15, 15]
     hidden = dict(_obs(f.c, R, p), junction_visible=False)

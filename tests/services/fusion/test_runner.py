@@ -10,6 +10,7 @@ import copy
 import numpy as np
 import pytest
 
+from services.fusion.evaluation import _interp as _truth_at
 from services.fusion.params import Params
 from services.fusion.runner import FusionRunner
 from tests.services.fusion.sessions import bench_session, inputs
@@ -29,10 +30,6 @@ def session(tmp_path_factory):
 
 def _arrays(samples):
     return np.array([s.stamp_ns for s in samples]), np.array([s.p_tip_base_m for s in samples])
-
-
-def _truth_at(t, tt, tip):
-    return np.stack([np.interp(t, tt, tip[:, j]) for j in range(3)], 1)
 
 
 def _gyro_fault(msgs, seconds: float, radps: float):
