@@ -94,7 +94,11 @@ def main(argv: list[str] | None = None) -> int:
                 "reacquired": int(diag.get("updates", {}).get("reacquire", 0)),
             }
             results.append(row)
-            blk = " ".join(f"{b['name']}={b['tip_rmse_mm']:.2f}" for b in r["blocks"])
+            blk = " ".join(
+                f"{b['name']}={b['tip_rmse_mm']:.2f}"
+                + (f" (covers {100 * b['coverage']:.0f} %)" if b["coverage"] < 0.99 else "")
+                for b in r["blocks"]
+            )
             print(
                 f"{row['session']:<22} {v:<11} pooled {r['pooled']['tip_rmse_mm']:6.2f} mm "
                 f"(median {r['pooled']['tip_median_mm']:.2f}, p95 {r['pooled']['tip_p95_mm']:.2f}, "

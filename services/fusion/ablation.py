@@ -195,6 +195,7 @@ def evaluate_variant(
         "kind": "subset" if variant in SUBSETS else "degraded",
         "tip_rmse_mm": r["pooled"]["tip_rmse_mm"],
         "tip_p95_mm": r["pooled"]["tip_p95_mm"],
+        "coverage": r["pooled"]["coverage"],
         "pooled": r["pooled"],
         "blocks": r["blocks"],
         "block_mean_mm": float(np.mean([b["tip_rmse_mm"] for b in r["blocks"]])),
@@ -236,7 +237,9 @@ def ablation_table(results: list[dict[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {"subsets": {}, "degraded": {}}
     for r in results:
         key = "subsets" if r["kind"] == "subset" else "degraded"
-        out[key][r["variant"]] = {k: r[k] for k in ("tip_rmse_mm", "tip_p95_mm", "block_mean_mm", "resets", "blocks")}
+        out[key][r["variant"]] = {
+            k: r[k] for k in ("tip_rmse_mm", "tip_p95_mm", "block_mean_mm", "coverage", "resets", "blocks")
+        }
     return out
 
 

@@ -167,7 +167,19 @@ def _print_continuous(result: dict[str, Any]) -> None:
     for b in result["blocks"]:
         print(
             f"  {b['name']:<14} RMSE {b['tip_rmse_mm']:.2f} mm  median {b['tip_median_mm']:.2f}  p95 {b['tip_p95_mm']:.2f}"
+            + _coverage_note(b)
         )
+    if p["coverage"] < COVERAGE_WARN:
+        print(
+            f"warning: the estimate covers only {100 * p['coverage']:.0f} % of the scored time; the errors are over that part"
+        )
+
+
+COVERAGE_WARN = 0.99  # below this share of a block covered, the printout says so
+
+
+def _coverage_note(b: dict[str, Any]) -> str:
+    return f"  (estimate covers {100 * b['coverage']:.0f} %)" if b["coverage"] < COVERAGE_WARN else ""
 
 
 def _run_static(session: Path, proto: str, cal: Calibration | None, plots: Path | None, args) -> int:

@@ -4,7 +4,9 @@ sees any of this).
 Continuous blocks (programmed sweeps, teleoperated, demo), as the paper scores them: the
 absolute tip error at every estimated (IMU) sample in the robot base frame, no alignment, the
 first 20 % of each block excluded; RMSE, median, p95, and the RMSE of the radial part (along
-the true shaft, i.e. depth) and the tangential part (normal to it); per block and pooled.
+the true shaft, i.e. depth) and the tangential part (normal to it); per block and pooled, each
+with its `coverage`: the share of the window the estimate covers (below 1 where the filter
+published nothing for a while, which the error figures cannot show).
 Other protocols (translation, rotation, static holds) register their own scorer in
 `SCORERS` under their protocol name and reuse `load_truth` / `load_estimate`.
 """
@@ -98,6 +100,22 @@ def error_stats(err_m: np.ndarray, radial_m: np.ndarray) -> dict[str, float]:
 _KEYS = ("tip_rmse_mm", "tip_median_mm", "tip_p95_mm", "radial_rmse_mm", "tangential_rmse_mm")
 
 
+def nominal_period_ns(t_ns: np.ndarray) -> float:
+    """The estimate's sample period: the median interval between its samples (0 for fewer
+    than two)."""
+    return float(np.median(np.diff(t_ns))) if len(t_ns) > 1 else 0.0
+
+
+def _coverage(n: int, window_ns: int, period_ns: float) -> float:
+    """Share of a scored window the estimate covers: its samples there against those a
+    gapless estimate at its own period would have. A filter that published nothing for part of
+    a block (waiting for vision after a reset) is scored only where it published: this says
+    how much that is."""
+    if window_ns <= 0 or period_ns <= 0:
+        return float(n > 0)
+    return float(min(1.0, n / (window_ns / period_ns)))
+
+
 def block_windows(trials: list[dict[str, Any]]) -> list[tuple[str, int, int]]:
     """(name, start_ns, end_ns) of every continuous block, its first 20 % excluded."""
     out = []
@@ -118,6 +136,7 @@ def score_continuous(truth: Truth, est: Estimate) -> dict[str, Any]:
     if not windows:
         raise EvaluationError("no continuous blocks (sweeps, teleop, demo) in this session")
     lo, hi = truth.t_ns[0], truth.t_ns[-1]
+    period = nominal_period_ns(est.t_ns)
     blocks, errs, rads, series = [], [], [], []
     for name, a, b in windows:
         sel = (est.t_ns >= a) & (est.t_ns <= b) & (est.t_ns >= lo) & (est.t_ns <= hi)
@@ -129,13 +148,13 @@ def score_continuous(truth: Truth, est: Estimate) -> dict[str, Any]:
         e = est.tip_base_m[sel] - p_true
         radial = (e * u).sum(1)
         stats = error_stats(e, radial)
-        n_expected = max(int(np.sum((est.t_ns >= a) & (est.t_ns <= b))), 1)
-        stats["coverage"] = float(len(t) / max(n_expected, 1))
+        stats["coverage"] = _coverage(len(t), b - a, period)
         blocks.append({"name": name, **stats})
         errs.append(e)
         rads.append(radial)
         series.append((name, t, est.tip_base_m[sel], p_true, np.linalg.norm(e, axis=1)))
     pooled = error_stats(np.concatenate(errs), np.concatenate(rads))
+    pooled["coverage"] = _coverage(pooled["samples"], sum(b - a for _, a, b in windows), period)
     return {"protocol": truth.protocol, "pooled": pooled, "blocks": blocks, "_series": series}
 
 

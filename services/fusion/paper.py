@@ -285,7 +285,9 @@ def gather(results: dict[str, Any], errors: dict[str, str], ablations_on: str = 
         if name.startswith("ablation:"):
             _, scen, variant = name.split(":")
             key = "subsets" if r["kind"] == "subset" else "degraded"
-            row = res[key].setdefault(variant, {"tip_rmse_mm": {}, "tip_p95_mm": {}, "block_mean_mm": {}, "resets": {}})
+            row = res[key].setdefault(
+                variant, {"tip_rmse_mm": {}, "tip_p95_mm": {}, "block_mean_mm": {}, "coverage": {}, "resets": {}}
+            )
             for m in row:
                 row[m][scen] = r[m]
             if variant == "full" and res["ablations_calibration"] == "calibrate":

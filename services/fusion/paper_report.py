@@ -220,7 +220,9 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
     sub, deg = res.get("subsets", {}), res.get("degraded", {})
 
     def cell(d: dict[str, Any], scen: str, key: str = "tip_rmse_mm") -> str:
-        return _f(d.get(key, {}).get(scen))
+        cov = d.get("coverage", {}).get(scen)
+        part = f" (covers {100 * cov:.0f} %)" if key == "tip_rmse_mm" and cov is not None and cov < 0.99 else ""
+        return _f(d.get(key, {}).get(scen)) + part
 
     lines = [
         "| Sensors | Programmed RMSE [p95] | Teleoperated RMSE [p95] | paper programmed | paper teleoperated |",
@@ -248,7 +250,9 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
         )
     lines.append(
         "\nmm; subsets: pooled RMSE with p95 in brackets; degraded: mean of the blocks' RMSE as the paper "
-        "reports it, pooled in parentheses. Blackouts: sixteen per session. Calibration: "
+        'reports it, pooled in parentheses. Blackouts: sixteen per session. "covers": the share of the '
+        "scored time with an estimate, where the filter published nothing for a while (after a reset without "
+        "vision to restart from); the RMSE is over the rest. Calibration: "
         + (
             "`tiplog calibrate block`'s file."
             if res.get("ablations_calibration", "calibrate") == "calibrate"

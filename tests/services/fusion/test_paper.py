@@ -12,7 +12,7 @@ import pytest
 
 from services.fusion.ablation import DEGRADED, SUBSETS
 from services.fusion.paper import gather
-from services.fusion.paper_report import PAPER_TRANSLATION_STEPS, markdown
+from services.fusion.paper_report import PAPER_TRANSLATION_STEPS, ablation_md, markdown
 from tiplog.cli import main as tiplog_main
 
 
@@ -44,14 +44,22 @@ def test_a_failed_step_is_reported_not_fatal():
 
 
 def test_ablations_say_which_calibration_they_ran_with():
-    row = {"kind": "subset", "tip_rmse_mm": 1.0, "tip_p95_mm": 2.0, "block_mean_mm": 1.0, "resets": 0}
-    results = {"ablation:sweeps:full": row, "as_calibrated:sweeps": {**row, "tip_rmse_mm": 1.5}}
+    row = {"kind": "subset", "tip_rmse_mm": 1.0, "tip_p95_mm": 2.0, "block_mean_mm": 1.0, "coverage": 1.0, "resets": 0}
+    short = {**row, "tip_rmse_mm": 40.0, "coverage": 0.62}  # published nothing for 38 % of the time
+    results = {
+        "ablation:sweeps:full": row,
+        "ablation:sweeps:imu_tof": short,
+        "as_calibrated:sweeps": {**row, "tip_rmse_mm": 1.5},
+    }
     on_file = gather(results, {})
     assert on_file["dynamic"]["sweeps"]["calibrated"]["tip_rmse_mm"] == 1.0
     assert on_file["dynamic"]["sweeps"]["as_calibrated"]["tip_rmse_mm"] == 1.5
     fallback = gather(results, {"calibrate": "UserError: no poses"}, "as_calibrated")
     assert "calibrated" not in fallback["dynamic"]["sweeps"] and fallback["ablations_calibration"] == "as_calibrated"
     assert fallback["subsets"]["full"]["tip_rmse_mm"]["sweeps"] == 1.0
+    md = "\n".join(ablation_md(on_file))
+    assert "| imu_tof | 40.00 (covers 62 %) [2.00]" in md  # a cell scored over part of the time says so
+    assert "| full | 1.00 [2.00]" in md
 
 
 @pytest.mark.slow

@@ -123,3 +123,33 @@ def test_evaluate_keys_and_figures_follow_the_error(tmp_path, session, estimate)
     assert p["tip_rmse_mm"] == pytest.approx(3.0, abs=1e-6)
     assert p["radial_rmse_mm"] ** 2 + p["tangential_rmse_mm"] ** 2 == pytest.approx(9.0, abs=1e-6)
     assert 0.5 < p["radial_rmse_mm"] < 2.9  # the shaft is oblique: both parts carry some
+
+
+def test_evaluate_says_how_much_of_a_block_the_estimate_covers(tmp_path, capsys, session):
+    """A filter that published nothing for a while is scored only where it published: the
+    coverage says how much that is, and the printout warns."""
+    from services.fusion.evaluation import block_windows, load_truth
+    from tiplog.v1.fusion_pb2 import FusionState
+
+    name, a, b = block_windows(load_truth(session).trials)[0]
+    gap = (a + (b - a) // 4, a + 3 * (b - a) // 4)  # half of the first block's scored window
+    est = tmp_path / "gap.mcap"
+    with McapWriter(est) as w:
+        for rec in read_messages(session, ["bench/robot"]):
+            t = rec.message.header.stamp_ns
+            if gap[0] <= t < gap[1]:
+                continue
+            m = FusionState()
+            m.header.stamp_ns = t
+            m.tip_m.x, m.tip_m.y, m.tip_m.z = rec.message.tip_m.x, rec.message.tip_m.y, rec.message.tip_m.z
+            w.write("fusion/state", m, rec.log_time_ns)
+    res = tmp_path / "r.json"
+    capsys.readouterr()
+    assert tiplog_main(["evaluate", str(session), "--estimate", str(est), "--json", str(res)]) == 0
+    out = capsys.readouterr().out
+    r = json.loads(res.read_text())
+    first = r["blocks"][0]
+    assert first["name"] == name and first["coverage"] == pytest.approx(0.5, abs=0.02)
+    assert all(blk["coverage"] > 0.99 for blk in r["blocks"][1:])
+    assert r["pooled"]["coverage"] < 0.99
+    assert "estimate covers 50 %" in out and "warning" in out
