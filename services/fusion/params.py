@@ -99,6 +99,10 @@ class Params:
     depth_min_m: float = 0.02
     depth_max_m: float = 0.40
     reset_after_vision_rejections: int = 15  # consecutive rejected vision frames -> divergence
+    # after a reset, restart from the IMU and ToF (as without vision) if no vision frame could
+    # restart the filter within this long: depth and inclination stay on display through a long
+    # loss of view; 0 waits for vision
+    restart_without_vision_ms: float = 1000.0
     # re-acquisition: this many frames in a row that pass the trocar gate but fail the axis'
     # innovation gate, and agree with each other (the same heading/position correction within
     # the tolerances below, over at most the window), move the state onto vision directly

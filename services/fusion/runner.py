@@ -42,13 +42,14 @@ class _Track:
     """What a rewind restores: the filter state (None before initialisation) and the latest
     accelerometer sample (for initialising roll)."""
 
-    __slots__ = ("state", "f_last", "resets", "reset_reasons", "neutral_u", "carried", "carried_nis")
+    __slots__ = ("state", "f_last", "resets", "reset_reasons", "reset_ns", "neutral_u", "carried", "carried_nis")
 
     def __init__(self) -> None:
         self.state: State | None = None
         self.f_last: np.ndarray | None = None
         self.resets = 0
         self.reset_reasons: dict[str, int] = {}
+        self.reset_ns: int | None = None  # when the last reset dropped the state, until a restart
         self.neutral_u: np.ndarray | None = None
         # update counts and NIS sums of the states a reset discarded: diagnostics cover the run
         self.carried: Counter[str] = Counter()
@@ -60,6 +61,7 @@ class _Track:
         t.f_last = self.f_last
         t.resets = self.resets
         t.reset_reasons = dict(self.reset_reasons)
+        t.reset_ns = self.reset_ns
         t.neutral_u = self.neutral_u
         t.carried = self.carried.copy()
         t.carried_nis = self.carried_nis.copy()
@@ -77,6 +79,7 @@ class FusionRunner:
         self.history_ns = int(p.history_ms * 1e6)
         self.max_age_ns = int(p.max_age_ms * 1e6)
         self.lock_ns = int(p.vision_lock_ms * 1e6)
+        self.restart_ns = int(p.restart_without_vision_ms * 1e6) if p.restart_without_vision_ms > 0 else None
         self.lat = {k: calibration.latency_ns(k) for k in ("gyro", "accel", "tof", "camera")}
         self._pending: deque[tuple[int, tuple]] = deque()  # (arrival, event) in feed order
         self._gyro_due: deque[tuple[int, int, tuple]] = deque()  # (cutoff, t, key) to publish
@@ -302,9 +305,10 @@ class FusionRunner:
                     tr.carried.update(s.counts)
                     tr.carried_nis.update(s.nis)
                     tr.state = None
+                    tr.reset_ns = t
                     tr.resets += 1
                     tr.reset_reasons[why] = tr.reset_reasons.get(why, 0) + 1
-            elif not f.vision and tr.f_last is not None:
+            elif tr.f_last is not None and (not f.vision or self._vision_overdue(t)):
                 self._init_without_vision(t)
         elif kind == "accel":
             tr.f_last = payload
@@ -321,13 +325,23 @@ class FusionRunner:
                 # Not before the first accelerometer sample: without it the roll is unknown and
                 # gravity would be removed along the wrong axis (live, vision can come first).
                 tr.state = f.init_from_vision(t, payload, tr.f_last if f.imu else None)
-                if tr.state is not None and tr.neutral_u is None:
-                    tr.neutral_u = tr.state.R[:, 2].copy()
+                if tr.state is not None:
+                    tr.reset_ns = None
+                    if tr.neutral_u is None:
+                        tr.neutral_u = tr.state.R[:, 2].copy()
         self._done_keys.append(key)
         self._done.append(ev)
         if kind == "gyro":
             self._snap_keys.append(key)
             self._snaps.append(tr.copy())
+
+    def _vision_overdue(self, t: int) -> bool:
+        """After a reset, whether no vision frame could restart the filter for
+        `restart_without_vision_ms`: it then restarts from the IMU and ToF as a filter without
+        vision does, so that depth and inclination are still published through a long loss of
+        view (a returning frame that disagrees is re-acquired, or resets it onto vision)."""
+        tr = self._track
+        return self.restart_ns is not None and tr.reset_ns is not None and t - tr.reset_ns >= self.restart_ns
 
     def _init_without_vision(self, t: int) -> None:
         """Without vision nothing observes heading: start from the accelerometer's inclination
@@ -340,5 +354,6 @@ class FusionRunner:
         s.P[0:3, 0:3] *= 100.0
         s.P[6:9, 6:9] *= 25.0
         tr.state = s
+        tr.reset_ns = None
         if tr.neutral_u is None:
             tr.neutral_u = u

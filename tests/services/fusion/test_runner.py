@@ -146,6 +146,29 @@ def test_divergence_resets_from_vision(session):
     assert np.sqrt(np.mean(np.sum((p[end] - truth) ** 2, 1))) < 5e-3
 
 
+def test_a_reset_without_vision_restarts_from_the_imu_and_tof(session):
+    """Vision gone for good and then a reset: the filter restarts from the IMU and ToF after
+    restart_without_vision_ms instead of publishing nothing to the end; 0 waits for vision."""
+    msgs, calib, (tt, tip) = session
+    spoilt, t_mid = _gyro_fault(msgs, 1.0, 3.0)
+    blind = [e for e in spoilt if e[0] != "vision/observation" or e[2] < t_mid]
+    t_gyro = [a for topic, _, a in blind if topic == "device/gyro"]
+    out, r = _run(blind, calib)
+    d = r.diagnostics()
+    assert d["resets"] >= 1, d
+    t, p = _arrays(out)
+    assert np.isfinite(p).all()
+    gaps = np.diff(t)
+    assert 0.9e9 <= gaps.max() <= 1.2e9  # the wait, not the rest of the session
+    assert t[-1] > t_gyro[-1] - 0.2e9  # published to the end
+    after = t > t[np.argmax(gaps)]
+    depth = np.linalg.norm(p[after] - calib.rcm_base_m, axis=1)
+    assert ((depth >= 0.02 - 1e-9) & (depth <= 0.40 + 1e-9)).all()
+    waited, r0 = _run(blind, calib, Params(restart_without_vision_ms=0.0))
+    t0, _ = _arrays(waited)
+    assert r0.diagnostics()["resets"] >= 1 and t0[-1] < t_mid + 1.5e9  # nothing after the reset
+
+
 def test_a_reset_forgets_what_the_tof_map_learnt_from_the_diverging_state(session):
     """The map records range errors against the filter's own pose; what it took from a state
     going wrong (after the last vision tip it accepted) would bend the depth in later blackouts."""
