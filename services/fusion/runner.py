@@ -60,11 +60,13 @@ class _Track:
         t.state = None if self.state is None else self.state.copy()
         t.f_last = self.f_last
         t.resets = self.resets
-        t.reset_reasons = dict(self.reset_reasons)
+        # shared, not copied: a reset replaces these (never mutates them), and a snapshot is
+        # taken at every gyro sample
+        t.reset_reasons = self.reset_reasons
         t.reset_ns = self.reset_ns
         t.neutral_u = self.neutral_u
-        t.carried = self.carried.copy()
-        t.carried_nis = self.carried_nis.copy()
+        t.carried = self.carried
+        t.carried_nis = self.carried_nis
         return t
 
 
@@ -302,12 +304,13 @@ class FusionRunner:
                 if why is not None:
                     if f.tof_map is not None:  # what it learnt since the last vision tip came from a state going wrong
                         f.tof_map.truncate(s.last_tip_ns)
+                    tr.carried, tr.carried_nis = Counter(tr.carried), Counter(tr.carried_nis)
                     tr.carried.update(s.counts)
                     tr.carried_nis.update(s.nis)
                     tr.state = None
                     tr.reset_ns = t
                     tr.resets += 1
-                    tr.reset_reasons[why] = tr.reset_reasons.get(why, 0) + 1
+                    tr.reset_reasons = {**tr.reset_reasons, why: tr.reset_reasons.get(why, 0) + 1}
             elif tr.f_last is not None and (not f.vision or self._vision_overdue(t)):
                 self._init_without_vision(t)
         elif kind == "accel":
