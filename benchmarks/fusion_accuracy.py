@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from services.fusion.ablation import DEGRADED, SUBSETS, run_variant, variant_inputs
-from services.fusion.evaluation import Estimate, block_windows, load_truth, score_continuous
+from services.fusion.evaluation import COVERAGE_WARN, Estimate, block_windows, load_truth, score_continuous
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.smoother import smooth
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
             results.append(row)
             blk = " ".join(
                 f"{b['name']}={b['tip_rmse_mm']:.2f}"
-                + (f" (covers {100 * b['coverage']:.0f} %)" if b["coverage"] < 0.99 else "")
+                + (f" (covers {100 * b['coverage']:.0f} %)" if b["coverage"] < COVERAGE_WARN else "")
                 for b in r["blocks"]
             )
             print(

@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from services.fusion.evaluation import CONTINUOUS_PROTOCOLS, EvaluationError, evaluate, plot, public
+from services.fusion.evaluation import CONTINUOUS_PROTOCOLS, COVERAGE_WARN, EvaluationError, evaluate, plot, public
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
@@ -173,9 +173,6 @@ def _print_continuous(result: dict[str, Any]) -> None:
         print(
             f"warning: the estimate covers only {100 * p['coverage']:.0f} % of the scored time; the errors are over that part"
         )
-
-
-COVERAGE_WARN = 0.99  # below this share of a block covered, the printout says so
 
 
 def _coverage_note(b: dict[str, Any]) -> str:

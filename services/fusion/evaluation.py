@@ -100,6 +100,9 @@ def error_stats(err_m: np.ndarray, radial_m: np.ndarray) -> dict[str, float]:
 _KEYS = ("tip_rmse_mm", "tip_median_mm", "tip_p95_mm", "radial_rmse_mm", "tangential_rmse_mm")
 
 
+COVERAGE_WARN = 0.99  # a block covered less than this is flagged wherever its figures are shown
+
+
 def nominal_period_ns(t_ns: np.ndarray) -> float:
     """The estimate's sample period: the median interval between its samples (0 for fewer
     than two)."""

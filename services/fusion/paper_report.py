@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from services.fusion.evaluation import COVERAGE_WARN
+
 # Paper, Table "Translation accuracy (300 trials)": step -> (RMSE, CI low, CI high, median, p95) [mm]
 PAPER_TRANSLATION_STEPS = {
     "1": (0.52, 0.45, 0.59, 0.41, 0.96),
@@ -221,7 +223,9 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
 
     def cell(d: dict[str, Any], scen: str, key: str = "tip_rmse_mm") -> str:
         cov = d.get("coverage", {}).get(scen)
-        part = f" (covers {100 * cov:.0f} %)" if key == "tip_rmse_mm" and cov is not None and cov < 0.99 else ""
+        part = (
+            f" (covers {100 * cov:.0f} %)" if key == "tip_rmse_mm" and cov is not None and cov < COVERAGE_WARN else ""
+        )
         return _f(d.get(key, {}).get(scen)) + part
 
     lines = [
