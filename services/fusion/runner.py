@@ -356,6 +356,8 @@ class FusionRunner:
         s = self.filt.new_state(t, R, 0.14, tr.f_last)
         s.P[0:3, 0:3] *= 100.0
         s.P[6:9, 6:9] *= 25.0
+        if self.filt.vision:  # a restart after a reset while the view was lost: the diagnostics say so
+            s.counts["updates:restart_without_vision"] = 1
         tr.state = s
         tr.reset_ns = None
         if tr.neutral_u is None:

@@ -156,6 +156,8 @@ def test_a_reset_without_vision_restarts_from_the_imu_and_tof(session):
     out, r = _run(blind, calib)
     d = r.diagnostics()
     assert d["resets"] >= 1, d
+    assert d["updates"]["restart_without_vision"] == d["resets"], d  # each reset here restarted so
+    assert not d["vision_locked"]
     t, p = _arrays(out)
     assert np.isfinite(p).all()
     gaps = np.diff(t)
@@ -167,6 +169,7 @@ def test_a_reset_without_vision_restarts_from_the_imu_and_tof(session):
     waited, r0 = _run(blind, calib, Params(restart_without_vision_ms=0.0))
     t0, _ = _arrays(waited)
     assert r0.diagnostics()["resets"] >= 1 and t0[-1] < t_mid + 1.5e9  # nothing after the reset
+    assert "restart_without_vision" not in r0.diagnostics()["updates"]
 
 
 def test_a_reset_forgets_what_the_tof_map_learnt_from_the_diverging_state(session):
