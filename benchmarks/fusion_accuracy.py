@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from services.fusion.ablation import DEGRADED, SUBSETS, run_variant, variant_inputs
-from services.fusion.evaluation import COVERAGE_WARN, Estimate, block_windows, load_truth, score_continuous
+from services.fusion.evaluation import Estimate, block_windows, coverage_note, load_truth, score_continuous
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.smoother import smooth
@@ -94,11 +94,7 @@ def main(argv: list[str] | None = None) -> int:
                 "reacquired": int(diag.get("updates", {}).get("reacquire", 0)),
             }
             results.append(row)
-            blk = " ".join(
-                f"{b['name']}={b['tip_rmse_mm']:.2f}"
-                + (f" (covers {100 * b['coverage']:.0f} %)" if b["coverage"] < COVERAGE_WARN else "")
-                for b in r["blocks"]
-            )
+            blk = " ".join(f"{b['name']}={b['tip_rmse_mm']:.2f}{coverage_note(b['coverage'])}" for b in r["blocks"])
             print(
                 f"{row['session']:<22} {v:<11} pooled {r['pooled']['tip_rmse_mm']:6.2f} mm "
                 f"(median {r['pooled']['tip_median_mm']:.2f}, p95 {r['pooled']['tip_p95_mm']:.2f}, "

@@ -23,7 +23,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from services.fusion.evaluation import CONTINUOUS_PROTOCOLS, COVERAGE_WARN, EvaluationError, evaluate, plot, public
+from services.fusion.evaluation import (
+    CONTINUOUS_PROTOCOLS,
+    COVERAGE_WARN,
+    EvaluationError,
+    coverage_note,
+    evaluate,
+    plot,
+    public,
+)
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
@@ -167,16 +175,12 @@ def _print_continuous(result: dict[str, Any]) -> None:
     for b in result["blocks"]:
         print(
             f"  {b['name']:<14} RMSE {b['tip_rmse_mm']:.2f} mm  median {b['tip_median_mm']:.2f}  p95 {b['tip_p95_mm']:.2f}"
-            + _coverage_note(b)
+            + coverage_note(b["coverage"], "estimate ")
         )
     if p["coverage"] < COVERAGE_WARN:
         print(
             f"warning: the estimate covers only {100 * p['coverage']:.0f} % of the scored time; the errors are over that part"
         )
-
-
-def _coverage_note(b: dict[str, Any]) -> str:
-    return f"  (estimate covers {100 * b['coverage']:.0f} %)" if b["coverage"] < COVERAGE_WARN else ""
 
 
 def _run_static(session: Path, proto: str, cal: Calibration | None, plots: Path | None, args) -> int:

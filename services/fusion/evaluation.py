@@ -103,6 +103,13 @@ _KEYS = ("tip_rmse_mm", "tip_median_mm", "tip_p95_mm", "radial_rmse_mm", "tangen
 COVERAGE_WARN = 0.99  # a block covered less than this is flagged wherever its figures are shown
 
 
+def coverage_note(coverage: float | None, subject: str = "") -> str:
+    """' (covers N %)' after a figure scored over less than COVERAGE_WARN of its time, else ''."""
+    if coverage is None or coverage >= COVERAGE_WARN:
+        return ""
+    return f" ({subject}covers {100 * coverage:.0f} %)"
+
+
 def nominal_period_ns(t_ns: np.ndarray) -> float:
     """The estimate's sample period: the median interval between its samples (0 for fewer
     than two)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from services.fusion.evaluation import COVERAGE_WARN
+from services.fusion.evaluation import coverage_note
 
 # Paper, Table "Translation accuracy (300 trials)": step -> (RMSE, CI low, CI high, median, p95) [mm]
 PAPER_TRANSLATION_STEPS = {
@@ -222,10 +222,7 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
     sub, deg = res.get("subsets", {}), res.get("degraded", {})
 
     def cell(d: dict[str, Any], scen: str, key: str = "tip_rmse_mm") -> str:
-        cov = d.get("coverage", {}).get(scen)
-        part = (
-            f" (covers {100 * cov:.0f} %)" if key == "tip_rmse_mm" and cov is not None and cov < COVERAGE_WARN else ""
-        )
+        part = coverage_note(d.get("coverage", {}).get(scen)) if key == "tip_rmse_mm" else ""
         return _f(d.get(key, {}).get(scen)) + part
 
     lines = [
