@@ -311,7 +311,7 @@ class FusionRunner:
                     tr.reset_ns = t
                     tr.resets += 1
                     tr.reset_reasons = {**tr.reset_reasons, why: tr.reset_reasons.get(why, 0) + 1}
-            elif tr.f_last is not None and (not f.vision or self._vision_overdue(t)):
+            elif tr.f_last is not None and self._start_without_vision(t):
                 self._init_without_vision(t)
         elif kind == "accel":
             tr.f_last = payload
@@ -338,11 +338,14 @@ class FusionRunner:
             self._snap_keys.append(key)
             self._snaps.append(tr.copy())
 
-    def _vision_overdue(self, t: int) -> bool:
-        """After a reset, whether no vision frame could restart the filter for
-        `restart_without_vision_ms`: it then restarts from the IMU and ToF as a filter without
-        vision does, so that depth and inclination are still published through a long loss of
-        view (a returning frame that disagrees is re-acquired, or resets it onto vision)."""
+    def _start_without_vision(self, t: int) -> bool:
+        """Whether a filter with no state starts from the IMU and ToF: always without vision;
+        with vision, only after a reset that no vision frame could restart from for
+        `restart_without_vision_ms`, so that depth and inclination are still published through a
+        long loss of view (a returning frame that disagrees is re-acquired, or resets it onto
+        vision)."""
+        if not self.filt.vision:
+            return True
         tr = self._track
         return self.restart_ns is not None and tr.reset_ns is not None and t - tr.reset_ns >= self.restart_ns
 
