@@ -99,11 +99,12 @@ def body(ctx: ServiceContext[BenchConfig]) -> None:
     sim = result[0]
 
     from services.bench.live import LiveBench
+    from services.bench.messages import device_rates_hz
     from tiplog.devproto.emulator import DeviceEmulator
 
     emulator = None
     if cfg.device_link:
-        emulator = DeviceEmulator(cfg.device_link, drop_without_host=True)
+        emulator = DeviceEmulator(cfg.device_link, rates_hz=device_rates_hz(sim.scenario), drop_without_host=True)
         emulator.plug()
         ctx.log.info("device on %s", cfg.device_link)
     try:

@@ -87,6 +87,25 @@ def tof(s: Stream) -> Batch:
     return Batch("device/tof", device_pb2.Tof.DESCRIPTOR.full_name, s.arrival_ns, out)
 
 
+def device_rates_hz(sc) -> dict[str, float]:
+    """The rates the simulated module announces in its hello, as a real one does."""
+    return {"gyro": sc.gyro.rate_hz, "accel": sc.accel.rate_hz, "tof": sc.tof.rate_hz, "mag": sc.mag.rate_hz}
+
+
+def device_status(sc, stamp_ns: int) -> Batch:
+    """One device/status at the start of an offline session: what the gateway publishes once
+    the module's hello has come (its nominal rates), so a reader knows the device's rates."""
+    m = device_pb2.DeviceStatus(
+        state=device_pb2.DEVICE_STATE_STREAMING, firmware="tiplog-bench", device_id="BENCH", message="simulated"
+    )
+    m.header.stamp_ns = int(stamp_ns)
+    m.header.frame_id = "device"
+    m.nominal_rates_hz.update(device_rates_hz(sc))
+    return Batch(
+        "device/status", device_pb2.DeviceStatus.DESCRIPTOR.full_name, np.array([stamp_ns]), [m.SerializeToString()]
+    )
+
+
 def _set(v, xyz) -> None:
     v.x, v.y, v.z = xyz
 

@@ -1,6 +1,7 @@
 """Offline session generation: robot ground truth -> sensor streams -> one MCAP file.
 
-Topics: device/gyro, device/accel, device/tof, device/mag (one message per sample,
+Topics: device/status (once, at the first device sample: the module's nominal rates),
+device/gyro, device/accel, device/tof, device/mag (one message per sample,
 header.stamp_ns = host arrival, header.device_stamp_ns = device clock, header.seq per
 stream), camera/info, vision/observation (measurement tier; header.stamp_ns = capture
 stamp, logged when processing finishes) or camera/image (pixel tier, foxglove RawImage
@@ -63,6 +64,8 @@ def generate(
         messages.mag(streams["mag"]),
         messages.robot(gt, scenario.output.robot_rate_hz, scenario.name),
     ]
+    first_device_ns = min(int(b.log_ns[0]) for b in batches[:4] if len(b.log_ns))
+    batches.insert(0, messages.device_status(scenario, first_device_ns))
     cam = scenario.camera.model()
     first_cam_ns = 0
     if frames is not None:

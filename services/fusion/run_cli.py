@@ -26,6 +26,8 @@ from tiplog.userio import UserError, atomic_output, input_file, input_mcap, outp
 
 log = logging.getLogger("tiplog.fusion")
 INPUT_TOPICS = ("device/gyro", "device/accel", "device/tof", "device/status", "vision/observation", "camera/info")
+# The paper's module (BNO085, VL53L1X) and camera; a device's own hello (device/status) overrides
+# the device streams', so a module with other rates is checked against what it announced.
 NOMINAL_HZ = {"device/gyro": 200.0, "device/accel": 240.0, "device/tof": 100.0, "vision/observation": 15.0}
 RATE_TOLERANCE = 0.5  # a stream below half or above twice its nominal rate is refused
 TF_PERIOD_NS = 50_000_000
@@ -75,6 +77,7 @@ def check_streams(src: Path, sensors: frozenset[str]) -> None:
     try:
         with open(src, "rb") as f:
             summary = make_reader(f).get_summary()
+            announced = announced_rates(f, summary) if summary is not None else {}
     except Exception as e:  # noqa: BLE001
         raise UserError(f"{src}: cannot read the MCAP summary ({type(e).__name__})") from None
     if summary is None or summary.statistics is None:
@@ -97,9 +100,32 @@ def check_streams(src: Path, sensors: frozenset[str]) -> None:
                 log.warning("%s: no %s messages; running without them", src, t)
             continue
         rate = counts[t] / span_s
-        nominal = NOMINAL_HZ[t]
-        if not (nominal * RATE_TOLERANCE <= rate <= nominal / RATE_TOLERANCE):
-            raise UserError(f"{src}: {t} at {rate:.1f} Hz, far off its nominal {nominal:.0f} Hz")
+        nominal = announced.get(t, NOMINAL_HZ[t])
+        high = float("inf") if t == "vision/observation" else nominal / RATE_TOLERANCE  # a faster camera is fine
+        if not (nominal * RATE_TOLERANCE <= rate <= high):
+            whose = "announced by the device" if t in announced else "default; no device/status announced one"
+            raise UserError(f"{src}: {t} at {rate:.1f} Hz, far off its nominal {nominal:.0f} Hz ({whose})")
+
+
+def announced_rates(f, summary) -> dict[str, float]:
+    """Device stream rates from the recording's first device/status that names any (the module's
+    hello, as the gateway publishes it), by topic; empty when the recording has none."""
+    if not any(ch.topic == "device/status" for ch in summary.channels.values()):
+        return {}
+    status_type = topics.message_type("device/status")
+    try:
+        f.seek(0)
+        for _schema, _channel, message in make_reader(f).iter_messages(topics=["device/status"]):
+            try:
+                rates = dict(status_type.FromString(message.data).nominal_rates_hz)
+            except Exception:  # noqa: BLE001 - a corrupt status is skipped, as the runner skips corrupt input
+                continue
+            out = {f"device/{k}": float(v) for k, v in rates.items() if k in ("gyro", "accel", "tof") and v > 0}
+            if out:
+                return out
+    except Exception:  # noqa: BLE001 - an unreadable status leaves the defaults; the run counts what it skips
+        log.warning("device/status unreadable; checking rates against the defaults")
+    return {}
 
 
 def iter_inputs(src: Path, stats: dict[str, int]):

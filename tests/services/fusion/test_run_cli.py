@@ -65,13 +65,34 @@ def test_bad_inputs_one_line_exit_2(tmp_path, capsys, session, estimate):
         for r in read_messages(session):
             if r.topic != "device/gyro" or r.message.header.seq % 5 == 0:
                 w.write(r.topic, r.message, r.log_time_ns)
-    _fails(capsys, ["fusion", "run", str(sparse), "--out", out], "device/gyro", "nominal")
+    _fails(capsys, ["fusion", "run", str(sparse), "--out", out], "device/gyro", "nominal 200", "announced")
     _fails(
         capsys,
         ["evaluate", str(session), "--estimate", str(session), "--json", str(tmp_path / "r.json")],
         "no estimate",
     )
     assert not (tmp_path / "o.mcap").exists() and not (tmp_path / "r.json").exists()
+
+
+def test_a_module_with_other_rates_is_checked_against_the_rates_it_announced(tmp_path, capsys):
+    """A lab's own module (gyro and accelerometer at 100 Hz, ToF at 50) runs: the rates it
+    announced in device/status, not the paper's module's, are the nominal ones."""
+    rec = tmp_path / "slow.mcap"
+    sets = ["gyro.rate_hz=100", "accel.rate_hz=100", "tof.rate_hz=50"]
+    argv = ["sim", "generate", "--scenario", "sweeps", "--seed", "13", "--duration", "6", "--out", str(rec)]
+    assert tiplog_main([*argv, *(a for kv in sets for a in ("--set", kv)), "--quiet"]) == 0
+    status = [r.message for r in read_messages(rec, ["device/status"])]
+    assert [dict(m.nominal_rates_hz) for m in status] == [{"gyro": 100.0, "accel": 100.0, "tof": 50.0, "mag": 100.0}]
+    out = tmp_path / "est.mcap"
+    assert tiplog_main(["fusion", "run", str(rec), "--out", str(out), "--quiet"]) == 0
+    t = np.array([r.message.header.stamp_ns for r in read_messages(out, ["fusion/state"])], np.int64)
+    assert len(t) > 300 and np.median(np.diff(t)) == pytest.approx(10e6, rel=0.05)  # the gyro's 100 Hz
+    unannounced = tmp_path / "unannounced.mcap"
+    rewrite(rec, unannounced, lambda topic: topic != "device/status", lambda n: True)
+    capsys.readouterr()
+    _fails(
+        capsys, ["fusion", "run", str(unannounced), "--out", str(tmp_path / "o.mcap")], "device/accel", "nominal 240"
+    )
 
 
 def test_estimate_identical_without_truth(tmp_path, session, estimate):
