@@ -26,7 +26,7 @@ from tiplog.userio import UserError, atomic_output, input_file, input_mcap, outp
 
 log = logging.getLogger("tiplog.fusion")
 INPUT_TOPICS = ("device/gyro", "device/accel", "device/tof", "device/status", "vision/observation", "camera/info")
-# The paper's module (BNO085, VL53L1X) and camera; a device's own hello (device/status) overrides
+# The paper's module (BNO085, VL53L0X) and camera; a device's own hello (device/status) overrides
 # the device streams', so a module with other rates is checked against what it announced.
 NOMINAL_HZ = {"device/gyro": 200.0, "device/accel": 240.0, "device/tof": 100.0, "vision/observation": 15.0}
 RATE_TOLERANCE = 0.5  # a stream below half or above twice its nominal rate is refused
