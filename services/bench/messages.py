@@ -4,6 +4,7 @@ session generation: one reused message object per stream, fields set, serialised
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
@@ -11,6 +12,7 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from services.bench.sensors.device import Stream
 from services.bench.sensors.vision_model import VisionFrames
 from tiplog import images
+from tiplog.devproto import PROTOCOL_VERSION
 from tiplog.geometry import rot_to_quat
 from tiplog.v1 import device_pb2, robot_pb2, vision_pb2
 
@@ -92,18 +94,16 @@ def device_rates_hz(sc) -> dict[str, float]:
     return {"gyro": sc.gyro.rate_hz, "accel": sc.accel.rate_hz, "tof": sc.tof.rate_hz, "mag": sc.mag.rate_hz}
 
 
-def device_status(sc, stamp_ns: int) -> Batch:
-    """One device/status at the start of an offline session: what the gateway publishes once
-    the module's hello has come (its nominal rates), so a reader knows the device's rates."""
-    m = device_pb2.DeviceStatus(
-        state=device_pb2.DEVICE_STATE_STREAMING, firmware="tiplog-bench", device_id="BENCH", message="simulated"
-    )
-    m.header.stamp_ns = int(stamp_ns)
-    m.header.frame_id = "device"
-    m.nominal_rates_hz.update(device_rates_hz(sc))
-    return Batch(
-        "device/status", device_pb2.DeviceStatus.DESCRIPTOR.full_name, np.array([stamp_ns]), [m.SerializeToString()]
-    )
+def device_metadata(sc) -> dict[str, Any]:
+    """The `device` metadata record the recorder writes from the module's hello, for an offline
+    session: a reader learns the device's nominal rates as from a real recording."""
+    return {
+        "firmware": "tiplog-bench",
+        "device_id": "BENCH",
+        "port": "",
+        "protocol_version": PROTOCOL_VERSION,
+        "nominal_rates_hz": device_rates_hz(sc),
+    }
 
 
 def _set(v, xyz) -> None:

@@ -1,13 +1,13 @@
 """Offline session generation: robot ground truth -> sensor streams -> one MCAP file.
 
-Topics: device/status (once, at the first device sample: the module's nominal rates),
-device/gyro, device/accel, device/tof, device/mag (one message per sample,
+Topics: device/gyro, device/accel, device/tof, device/mag (one message per sample,
 header.stamp_ns = host arrival, header.device_stamp_ns = device clock, header.seq per
 stream), camera/info, vision/observation (measurement tier; header.stamp_ns = capture
 stamp, logged when processing finishes) or camera/image (pixel tier, foxglove RawImage
 rgb8, logged at capture), bench/robot (ground truth, evaluation only, at
 output.robot_rate_hz). Log time = host arrival. Metadata: scenario (resolved), session
-(seed, tier, protocol, rates), calibration_as_calibrated, calibration_truth (evaluation
+(seed, tier, protocol, rates), device (the module's hello as the recorder writes it: its
+nominal rates), calibration_as_calibrated, calibration_truth (evaluation
 only), trials.
 """
 
@@ -64,8 +64,6 @@ def generate(
         messages.mag(streams["mag"]),
         messages.robot(gt, scenario.output.robot_rate_hz, scenario.name),
     ]
-    first_device_ns = min(int(b.log_ns[0]) for b in batches[:4] if len(b.log_ns))
-    batches.insert(0, messages.device_status(scenario, first_device_ns))
     cam = scenario.camera.model()
     first_cam_ns = 0
     if frames is not None:
@@ -94,6 +92,7 @@ def generate(
                 "generator": f"tiplog/{__version__} services.bench.session",
             },
         )
+        w.add_metadata("device", messages.device_metadata(scenario))  # as the recorder writes the hello
         w.add_metadata("calibration_as_calibrated", {"json": json.dumps(calib.to_dict())})
         w.add_metadata(
             "calibration_truth",

@@ -26,8 +26,8 @@ from tiplog.userio import UserError, atomic_output, input_file, input_mcap, outp
 
 log = logging.getLogger("tiplog.fusion")
 INPUT_TOPICS = ("device/gyro", "device/accel", "device/tof", "device/status", "vision/observation", "camera/info")
-# The paper's module (BNO085, VL53L0X) and camera; a device's own hello (device/status) overrides
-# the device streams', so a module with other rates is checked against what it announced.
+# The paper's module (BNO085, VL53L0X) and camera; a device's own hello (the recording's `device`
+# metadata) overrides the device streams', so a module with other rates is checked against it.
 NOMINAL_HZ = {"device/gyro": 200.0, "device/accel": 240.0, "device/tof": 100.0, "vision/observation": 15.0}
 RATE_TOLERANCE = 0.5  # a stream below half or above twice its nominal rate is refused
 TF_PERIOD_NS = 50_000_000
@@ -54,14 +54,15 @@ def load_inputs(args: argparse.Namespace) -> tuple[Path, Calibration, Params, fr
         params = Params.load_yaml(input_file(args.params, "parameter file")) if args.params else Params()
     except ParamsError as e:
         raise UserError(str(e)) from None
+    meta = _metadata(src)
     try:
         if args.calibration:
             calib = Calibration.load_yaml(input_file(args.calibration, "calibration file"))
         else:
-            calib = Calibration.from_mcap_metadata(_metadata(src), where=str(src))
+            calib = Calibration.from_mcap_metadata(meta, where=str(src))
     except CalibrationError as e:
         raise UserError(str(e)) from None
-    check_streams(src, sensors)
+    check_streams(src, sensors, announced_rates(meta))
     return src, calib, params, sensors
 
 
@@ -72,12 +73,12 @@ def _metadata(src: Path) -> dict[str, dict[str, str]]:
         raise UserError(f"{src}: cannot read the MCAP metadata ({type(e).__name__})") from None
 
 
-def check_streams(src: Path, sensors: frozenset[str]) -> None:
-    """IMU topics present, each used stream near its nominal rate (from the file's summary)."""
+def check_streams(src: Path, sensors: frozenset[str], announced: dict[str, float]) -> None:
+    """IMU topics present, each used stream near its nominal rate (from the file's summary):
+    the rate the device announced where `announced` names it, else the paper's module's."""
     try:
         with open(src, "rb") as f:
             summary = make_reader(f).get_summary()
-            announced = announced_rates(f, summary) if summary is not None else {}
     except Exception as e:  # noqa: BLE001
         raise UserError(f"{src}: cannot read the MCAP summary ({type(e).__name__})") from None
     if summary is None or summary.statistics is None:
@@ -103,29 +104,22 @@ def check_streams(src: Path, sensors: frozenset[str]) -> None:
         nominal = announced.get(t, NOMINAL_HZ[t])
         high = float("inf") if t == "vision/observation" else nominal / RATE_TOLERANCE  # a faster camera is fine
         if not (nominal * RATE_TOLERANCE <= rate <= high):
-            whose = "announced by the device" if t in announced else "default; no device/status announced one"
+            whose = "announced by the device" if t in announced else "default; the recording names no device rates"
             raise UserError(f"{src}: {t} at {rate:.1f} Hz, far off its nominal {nominal:.0f} Hz ({whose})")
 
 
-def announced_rates(f, summary) -> dict[str, float]:
-    """Device stream rates from the recording's first device/status that names any (the module's
-    hello, as the gateway publishes it), by topic; empty when the recording has none."""
-    if not any(ch.topic == "device/status" for ch in summary.channels.values()):
+def announced_rates(meta: dict[str, dict[str, str]]) -> dict[str, float]:
+    """Device stream rates by topic from the recording's `device` metadata: the module's hello,
+    as the recorder (and the bench) writes it; empty when the recording has none."""
+    raw = meta.get("device", {}).get("nominal_rates_hz")
+    if raw is None:
         return {}
-    status_type = topics.message_type("device/status")
     try:
-        f.seek(0)
-        for _schema, _channel, message in make_reader(f).iter_messages(topics=["device/status"]):
-            try:
-                rates = dict(status_type.FromString(message.data).nominal_rates_hz)
-            except Exception:  # noqa: BLE001 - a corrupt status is skipped, as the runner skips corrupt input
-                continue
-            out = {f"device/{k}": float(v) for k, v in rates.items() if k in ("gyro", "accel", "tof") and v > 0}
-            if out:
-                return out
-    except Exception:  # noqa: BLE001 - an unreadable status leaves the defaults; the run counts what it skips
-        log.warning("device/status unreadable; checking rates against the defaults")
-    return {}
+        rates = {f"device/{k}": float(v) for k, v in json.loads(raw).items() if k in ("gyro", "accel", "tof")}
+    except (ValueError, TypeError, AttributeError):
+        log.warning("device metadata: nominal_rates_hz unreadable (%.40r); checking rates against the defaults", raw)
+        return {}
+    return {t: v for t, v in rates.items() if v > 0}
 
 
 def iter_inputs(src: Path, stats: dict[str, int]):

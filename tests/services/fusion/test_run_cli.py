@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from services.fusion.run_cli import announced_rates
 from tests.services.fusion.sessions import bench_session, rewrite
 from tiplog.calibration import Calibration
 from tiplog.cli import main as tiplog_main
@@ -76,23 +77,24 @@ def test_bad_inputs_one_line_exit_2(tmp_path, capsys, session, estimate):
 
 def test_a_module_with_other_rates_is_checked_against_the_rates_it_announced(tmp_path, capsys):
     """A lab's own module (gyro and accelerometer at 100 Hz, ToF at 50) runs: the rates it
-    announced in device/status, not the paper's module's, are the nominal ones."""
+    announced (the `device` metadata), not the paper's module's, are the nominal ones."""
     rec = tmp_path / "slow.mcap"
     sets = ["gyro.rate_hz=100", "accel.rate_hz=100", "tof.rate_hz=50"]
     argv = ["sim", "generate", "--scenario", "sweeps", "--seed", "13", "--duration", "6", "--out", str(rec)]
     assert tiplog_main([*argv, *(a for kv in sets for a in ("--set", kv)), "--quiet"]) == 0
-    status = [r.message for r in read_messages(rec, ["device/status"])]
-    assert [dict(m.nominal_rates_hz) for m in status] == [{"gyro": 100.0, "accel": 100.0, "tof": 50.0, "mag": 100.0}]
+    rates = json.loads(read_metadata(rec)["device"]["nominal_rates_hz"])
+    assert rates == {"gyro": 100.0, "accel": 100.0, "tof": 50.0, "mag": 100.0}
     out = tmp_path / "est.mcap"
     assert tiplog_main(["fusion", "run", str(rec), "--out", str(out), "--quiet"]) == 0
     t = np.array([r.message.header.stamp_ns for r in read_messages(out, ["fusion/state"])], np.int64)
     assert len(t) > 300 and np.median(np.diff(t)) == pytest.approx(10e6, rel=0.05)  # the gyro's 100 Hz
     unannounced = tmp_path / "unannounced.mcap"
-    rewrite(rec, unannounced, lambda topic: topic != "device/status", lambda n: True)
+    rewrite(rec, unannounced, lambda topic: True, lambda n: n != "device")
     capsys.readouterr()
     _fails(
         capsys, ["fusion", "run", str(unannounced), "--out", str(tmp_path / "o.mcap")], "device/accel", "nominal 240"
     )
+    assert announced_rates({"device": {"nominal_rates_hz": "{not json"}}) == {}  # the defaults, with a warning
 
 
 def test_estimate_identical_without_truth(tmp_path, session, estimate):
