@@ -141,7 +141,12 @@ class TrackingFilter:
         self._max_speed2 = p.max_speed_mps**2
         self.tof_map = (
             TofMap(
-                p.tof_map_sigma_deg, p.tof_map_sigma_mm, p.tof_map_bin_ms, p.tof_map_window_s, p.tof_map_prior_weight
+                p.tof_map_sigma_deg,
+                p.tof_map_sigma_mm,
+                p.tof_map_bin_ms,
+                p.tof_map_window_s,
+                p.tof_map_prior_weight,
+                p.history_ms,
             )
             if p.tof_map and self.tof and self.vision
             else None

@@ -42,7 +42,17 @@ class _Track:
     """What a rewind restores: the filter state (None before initialisation) and the latest
     accelerometer sample (for initialising roll)."""
 
-    __slots__ = ("state", "f_last", "resets", "reset_reasons", "reset_ns", "neutral_u", "carried", "carried_nis")
+    __slots__ = (
+        "state",
+        "f_last",
+        "resets",
+        "reset_reasons",
+        "reset_ns",
+        "neutral_u",
+        "carried",
+        "carried_nis",
+        "map_mark",
+    )
 
     def __init__(self) -> None:
         self.state: State | None = None
@@ -54,6 +64,7 @@ class _Track:
         # update counts and NIS sums of the states a reset discarded: diagnostics cover the run
         self.carried: Counter[str] = Counter()
         self.carried_nis: Counter[str] = Counter()
+        self.map_mark = 0  # the ToF map's mark() when this was taken
 
     def copy(self) -> _Track:
         t = _Track.__new__(_Track)
@@ -67,6 +78,7 @@ class _Track:
         t.neutral_u = self.neutral_u
         t.carried = self.carried
         t.carried_nis = self.carried_nis
+        t.map_mark = self.map_mark
         return t
 
 
@@ -279,7 +291,7 @@ class FusionRunner:
         snap_key = self._snap_keys[i]
         self._track = self._snaps[i].copy()
         if self.filt.tof_map is not None:
-            self.filt.tof_map.truncate(snap_key[0])
+            self.filt.tof_map.rewind(self._track.map_mark)
         del self._snap_keys[i + 1 :]
         del self._snaps[i + 1 :]
         j = bisect.bisect_right(self._done_keys, snap_key)
@@ -303,7 +315,7 @@ class FusionRunner:
                 why = f.diverged(s)
                 if why is not None:
                     if f.tof_map is not None:  # what it learnt since the last vision tip came from a state going wrong
-                        f.tof_map.truncate(s.last_tip_ns)
+                        f.tof_map.forget_after(s.last_tip_ns)
                     tr.carried, tr.carried_nis = Counter(tr.carried), Counter(tr.carried_nis)
                     tr.carried.update(s.counts)
                     tr.carried_nis.update(s.nis)
@@ -335,6 +347,8 @@ class FusionRunner:
         self._done_keys.append(key)
         self._done.append(ev)
         if kind == "gyro":
+            if f.tof_map is not None:
+                tr.map_mark = f.tof_map.mark()
             self._snap_keys.append(key)
             self._snaps.append(tr.copy())
 

@@ -58,32 +58,49 @@ def test_entries_older_than_the_window_are_not_used():
     assert m.predict(t, _roll(0.0), P0, prior=0.0)[0] == 0.0
 
 
-def test_a_rewind_forgets_what_came_after_it():
+@pytest.mark.parametrize("cut", [250, 252, 254, 399])  # a bin's last sample, inside one, the open bin
+def test_a_rewind_forgets_exactly_what_came_after_its_mark(cut):
+    """The rewound map equals one that never saw what came after the mark, also when the mark
+    falls inside a bin (samples share the state's time with the snapshot, so it is the count)."""
     rng = np.random.default_rng(3)
     poses = [(rng.uniform(-3, 3), rng.normal(size=3) * 0.003, rng.normal() * 0.003) for _ in range(400)]
     once = _map()
     for k, (roll, dp, e) in enumerate(poses):
-        t = k * 10_000_000
-        once.add(t, once.key(_roll(roll), P0 + dp), e)
-    t_cut = 250 * 10_000_000
-    # the rewound map takes other samples after t_cut, then rewinds to t_cut and takes the same
+        once.add(k * 10_000_000, once.key(_roll(roll), P0 + dp), e)
+    # the rewound map takes other samples after the mark, then rewinds and takes the same ones
     other = _map()
-    for k, (roll, dp, e) in enumerate(poses[:251]):
+    for k, (roll, dp, e) in enumerate(poses[: cut + 1]):
         other.add(k * 10_000_000, other.key(_roll(roll), P0 + dp), e)
-    for k in range(251, 300):  # at the poses that will come again, 50 mm off
-        roll, dp, _ = poses[k]
+    mark = other.mark()
+    for k in range(cut + 1, cut + 50):  # at the poses that will come again, 50 mm off
+        roll, dp, _ = poses[k % 400]
         other.add(k * 10_000_000, other.key(_roll(roll), P0 + dp), 0.05)
-    other.truncate(t_cut)
-    for k in range(251, 400):
+    other.rewind(mark)
+    for k in range(cut + 1, 400):
         roll, dp, e = poses[k]
         other.add(k * 10_000_000, other.key(_roll(roll), P0 + dp), e)
+    for x, y in zip(once.entries(), other.entries(), strict=True):
+        np.testing.assert_array_equal(x, y)
     q = [(_roll(r), P0 + d) for r, d, _ in poses[::37]]
     a = [once.predict(400 * 10_000_000, R, p, 0.0)[0] for R, p in q]
     b = [other.predict(400 * 10_000_000, R, p, 0.0)[0] for R, p in q]
-    # the bin that straddles the cut is dropped whole: at most that bin differs
-    assert np.allclose(a, b, atol=2e-4)
-    assert not np.allclose(a, [0.0] * len(a))
-    assert all(abs(x) < 0.02 for x in b)  # nothing of the discarded 50 mm errors is left
+    assert a == b and not np.allclose(a, 0.0)
+
+
+@pytest.mark.parametrize(("last", "kept"), [(283, 284), (123, 120)])
+def test_a_reset_forgets_the_samples_after_a_time(last, kept):
+    """Within a rewind's reach (1.5 s) exactly; further back, the bin that straddles the time
+    (50 ms) goes whole."""
+    m, ref = _map(), _map()
+    for k in range(300):
+        for mm in (m, ref) if k < kept else (m,):
+            mm.add(k * 10_000_000, mm.key(_roll(k * 0.01), P0), 0.001 * k)
+    m.forget_after(last * 10_000_000)
+    assert m.mark() == ref.mark() == kept
+    for mm in (m, ref):
+        mm.add(400 * 10_000_000, mm.key(_roll(0.0), P0), 0.0)
+    for x, y in zip(m.entries(), ref.entries(), strict=True):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_a_full_map_keeps_what_its_window_needs():
