@@ -67,7 +67,11 @@ class Params:
     tof_sigma_held_mm: float = 14.0
     tof_min_mm: float = 20.0
     tof_max_mm: float = 400.0
-    tof_offset_window_ms: float = 2000.0  # b_rho estimated only within this of an independent vision tip
+    # b_rho estimated only within this of an independent vision tip (the paper: 2 s). Past it
+    # the ToF is the depth: held weight, the pose map. 250 ms (4 frames at 15 frames/s) was
+    # chosen on tuning seeds 1000-1001: in a 2 s window the first 2 s of every gap in the tips
+    # ran on the weak ToF weight and the accelerometer (radial 1.5 mm in a blackout's first s)
+    tof_offset_window_ms: float = 250.0
     # the ToF's pose-locked error learnt while b_rho is free, used while it is held (tof_map.py)
     tof_map: bool = True
     tof_map_sigma_deg: float = 1.0

@@ -217,7 +217,7 @@ def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
         rho = _range(f.c, R, p)
         learn = s.copy()
         for k in range(100):
-            learn.t_ns = s.t_ns + k * 10_000_000
+            learn.t_ns = learn.last_tip_ns = s.t_ns + k * 10_000_000  # vision sees the tip throughout
             f.update_tof(learn, rho + 0.004)
         assert (f.tof_map is not None and len(f.tof_map) > 0) == use_map
         held = s.copy()
