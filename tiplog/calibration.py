@@ -12,6 +12,7 @@ stamp on the host clock.
 from __future__ import annotations
 
 import json
+import numbers
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -34,10 +35,104 @@ _SHAPES: dict[str, tuple[int, ...]] = {
     "tof_beam_tool": (3,),
     "tof_plane_normal_base": (3,),
 }
+_SCALARS = ("shaft_radius_m", "junction_proximal_m", "tof_plane_h_m", "vision_tip_offset_m")
+# Rotations are read as written: `yaml.safe_dump` keeps every digit, so a file from `tiplog
+# calibrate` or the bench is orthonormal to ~1e-15; the tolerance admits one typed or rounded to
+# four decimals (0.06 deg at most) and refuses anything that is not a rotation.
+ROTATION_TOL = 1e-3
+UNIT_TOL = 1e-3
+_INTRINSICS = ("fx", "fy", "cx", "cy")
+_INTRINSICS_OPTIONAL = ("dist", "width", "height")  # width/height: what `calibrate intrinsics` writes alone
+_DIST_LENGTHS = (4, 5, 8, 12, 14)  # OpenCV's distortion models
+# Keys of a record that are not fields: the bench marks its truth `evaluation_only` (refused).
+_RECORD_KEYS = ("evaluation_only",)
+_DOC_KEYS = ("format", "version", "calibration", "report")
 
 
 class CalibrationError(ValueError):
     """A calibration file or record that cannot be used; the message names the field."""
+
+
+def _fmt(v: Any) -> str:
+    return " ".join(f"{x:g}" for x in np.ravel(v))
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def _number(name: str, v: Any) -> float:
+    """`v` as a finite float, or CalibrationError naming the field (a bool or a string is not a number)."""
+    if not _is_number(v):
+        raise CalibrationError(f"calibration field {name}: expected a number (got {v!r})")
+    x = float(v)
+    if not np.isfinite(x):
+        raise CalibrationError(f"calibration field {name}: must be a finite number (got {x})")
+    return x
+
+
+def _array(name: str, v: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """`v` (nested lists of numbers) as a finite float array of `shape`, or CalibrationError."""
+    what = f"a {shape[0]}-vector" if len(shape) == 1 else f"a {shape[0]}x{shape[1]} matrix (a list of rows)"
+    try:
+        a = np.asarray(v)
+    except ValueError:  # ragged nesting
+        raise CalibrationError(f"calibration field {name}: expected {what} of numbers") from None
+    if a.dtype.kind not in "iuf":
+        raise CalibrationError(f"calibration field {name}: expected {what} of numbers (got {v!r})"[:200])
+    if a.shape != shape:
+        raise CalibrationError(f"calibration field {name}: expected shape {shape}, got {a.shape}")
+    a = a.astype(float)
+    if not np.all(np.isfinite(a)):
+        raise CalibrationError(f"calibration field {name}: not finite ({_fmt(a)})")
+    return a
+
+
+def _rotation(name: str, R: np.ndarray, part: str = "") -> None:
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if err > ROTATION_TOL or det < 0:
+        raise CalibrationError(
+            f"calibration field {name}{part}: not a rotation matrix (R^T R differs from identity by {err:.3g}, "
+            f"det {det:.6g}; needs orthonormal rows within {ROTATION_TOL:g} and det +1)"
+        )
+
+
+def _intrinsics(d: Any) -> dict[str, Any]:
+    if not isinstance(d, dict):
+        raise CalibrationError(f"calibration field intrinsics: expected a mapping with fx, fy, cx, cy (got {d!r})")
+    for k in _INTRINSICS:
+        if k not in d:
+            raise CalibrationError(f"calibration field intrinsics: missing {k!r}")
+    unknown = sorted(str(k) for k in d if k not in _INTRINSICS + _INTRINSICS_OPTIONAL)
+    if unknown:
+        raise CalibrationError(
+            f"calibration field intrinsics: unknown key(s) {', '.join(unknown)} "
+            f"(known: {', '.join(_INTRINSICS + _INTRINSICS_OPTIONAL)})"
+        )
+    out: dict[str, Any] = {k: _number(f"intrinsics.{k}", d[k]) for k in _INTRINSICS}
+    for k in ("fx", "fy"):
+        if not out[k] > 0:
+            raise CalibrationError(f"calibration field intrinsics.{k}: focal length must be > 0 px (got {out[k]:g})")
+    if "dist" in d:
+        dist = d["dist"]
+        if not isinstance(dist, list | tuple) or not all(_is_number(x) for x in dist):
+            raise CalibrationError(f"calibration field intrinsics.dist: expected a list of numbers (got {dist!r})")
+        if len(dist) not in _DIST_LENGTHS:
+            raise CalibrationError(
+                f"calibration field intrinsics.dist: expected {', '.join(map(str, _DIST_LENGTHS))} "
+                f"coefficients (OpenCV order k1 k2 p1 p2 [k3 ...]), got {len(dist)}"
+            )
+        out["dist"] = [_number(f"intrinsics.dist[{i}]", x) for i, x in enumerate(dist)]
+    for k in ("width", "height"):
+        if k in d:
+            v = d[k]
+            if not isinstance(v, numbers.Integral) or isinstance(v, bool) or v <= 0:
+                raise CalibrationError(
+                    f"calibration field intrinsics.{k}: expected a whole number of px > 0 (got {v!r})"
+                )
+            out[k] = int(v)
+    return out
 
 
 @dataclass(frozen=True)
@@ -58,24 +153,32 @@ class Calibration:
 
     def __post_init__(self) -> None:
         for name, shape in _SHAPES.items():
-            v = np.asarray(getattr(self, name), dtype=float)
-            if v.shape != shape:
-                raise CalibrationError(f"calibration field {name}: expected shape {shape}, got {v.shape}")
-            if not np.all(np.isfinite(v)):
-                raise CalibrationError(f"calibration field {name}: not finite")
-            object.__setattr__(self, name, v)
-        for k in ("fx", "fy", "cx", "cy"):
-            if k not in self.intrinsics:
-                raise CalibrationError(f"calibration field intrinsics: missing {k!r}")
+            object.__setattr__(self, name, _array(name, getattr(self, name), shape))
+        for name in _SCALARS:
+            object.__setattr__(self, name, _number(name, getattr(self, name)))
         if not self.shaft_radius_m > 0:
             raise CalibrationError(f"calibration field shaft_radius_m: must be > 0 (got {self.shaft_radius_m})")
+        object.__setattr__(self, "intrinsics", _intrinsics(self.intrinsics))
+        if not isinstance(self.latency_ms, dict):
+            raise CalibrationError(
+                f"calibration field latency_ms: expected a mapping of stream name to ms (got {self.latency_ms!r})"
+            )
+        lat = {}
         for k, v in self.latency_ms.items():
-            if not (0.0 <= float(v) < 1000.0):
+            lat[k] = _number(f"latency_ms.{k}", v)
+            if not (0.0 <= lat[k] < 1000.0):
                 raise CalibrationError(f"calibration field latency_ms.{k}: must be in [0, 1000) ms (got {v})")
+        object.__setattr__(self, "latency_ms", lat)
         for name in ("tof_beam_tool", "tof_plane_normal_base"):
             n = np.linalg.norm(getattr(self, name))
-            if abs(n - 1.0) > 1e-3:
+            if abs(n - 1.0) > UNIT_TOL:
                 raise CalibrationError(f"calibration field {name}: must be a unit vector (norm {n:.6f})")
+        _rotation("R_tool_imu", self.R_tool_imu)
+        _rotation("T_base_camera", self.T_base_camera[:3, :3], " (its upper-left 3x3)")
+        if np.max(np.abs(self.T_base_camera[3] - (0.0, 0.0, 0.0, 1.0))) > 1e-9:
+            raise CalibrationError(
+                f"calibration field T_base_camera: last row must be 0 0 0 1 (got {_fmt(self.T_base_camera[3])})"
+            )
 
     @property
     def R_base_camera(self) -> np.ndarray:
@@ -98,13 +201,20 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "calibration") -> Calibration:
-        """From a plain dict; unknown keys (such as a bench's `evaluation_only`) are ignored
-        except that a record marked evaluation-only is refused."""
+        """From a plain dict. Unknown keys are refused by name, as `tiplog fusion run --params`
+        refuses unknown parameters (a misspelt field would otherwise silently keep its default);
+        the bench's `evaluation_only` marker is the one extra key, and a record marked
+        evaluation-only is refused."""
         if not isinstance(d, dict):
             raise CalibrationError(f"{where}: expected a mapping of calibration fields")
         if str(d.get("evaluation_only", False)).lower() == "true":
             raise CalibrationError(f"{where}: this is the bench's ground truth, never for estimators")
         names = {f.name for f in fields(cls)}
+        unknown = sorted(str(k) for k in d if k not in names and k not in _RECORD_KEYS)
+        if unknown:
+            raise CalibrationError(
+                f"{where}: unknown calibration field(s) {', '.join(unknown)} (known: {', '.join(sorted(names))})"
+            )
         required = {f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING}
         missing = sorted(required - d.keys())
         if missing:
@@ -112,8 +222,6 @@ class Calibration:
         try:
             return cls(**{k: v for k, v in d.items() if k in names})
         except CalibrationError as e:
-            raise CalibrationError(f"{where}: {e}") from None
-        except (TypeError, ValueError) as e:
             raise CalibrationError(f"{where}: {e}") from None
 
     def save_yaml(self, path: str | Path, extra: dict[str, Any] | None = None) -> None:
@@ -139,8 +247,16 @@ class Calibration:
             raise CalibrationError(f"{p}: not valid YAML{at}") from None
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
             raise CalibrationError(f"{p}: not a tiplog calibration file (no 'format: {FORMAT}')")
-        if int(doc.get("version", 0)) > VERSION:
-            raise CalibrationError(f"{p}: calibration format version {doc.get('version')} is newer than {VERSION}")
+        version = doc.get("version", 0)
+        if not isinstance(version, int) or isinstance(version, bool):
+            raise CalibrationError(f"{p}: version: expected a whole number (got {version!r})")
+        if version > VERSION:
+            raise CalibrationError(f"{p}: calibration format version {version} is newer than {VERSION}")
+        unknown = sorted(str(k) for k in doc if k not in _DOC_KEYS)
+        if unknown:
+            raise CalibrationError(
+                f"{p}: unknown top-level key(s) {', '.join(unknown)} (known: {', '.join(_DOC_KEYS)})"
+            )
         return cls.from_dict(doc.get("calibration"), where=str(p))
 
     @classmethod

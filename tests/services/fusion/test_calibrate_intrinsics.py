@@ -7,6 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
+from services.bench.scenario import load_scenario
+from services.bench.simulation import as_calibrated_constants
+from tiplog.calibration import Calibration
 from tiplog.calibration_fits import DegenerateDataError
 from tiplog.calibration_fits.intrinsics import board_points, find_corners, fit_intrinsics
 from tiplog.camera_model import CameraModel
@@ -116,6 +119,13 @@ def test_intrinsics_recover_the_true_projection_within_a_pixel(views, tmp_path, 
     capsys.readouterr()
     assert main(["calibrate", "intrinsics", str(folder), "--board", "9by6", "--out", str(tmp_path / "x.yaml")]) == 2
     assert "--board" in capsys.readouterr().err
+    # with --base: a calibration file that reads back, the fitted intrinsics in it
+    base, merged = tmp_path / "base.yaml", tmp_path / "merged.yaml"
+    Calibration.from_dict(as_calibrated_constants(load_scenario("static"), 1).to_dict()).save_yaml(base)
+    argv = ["calibrate", "intrinsics", str(folder), "--every", "2", "--base", str(base), "--out", str(merged)]
+    assert main(argv) == 0
+    got = Calibration.load_yaml(merged)
+    assert abs(got.intrinsics["fx"] / CAM.fx - 1) < 0.01 and len(got.intrinsics["dist"]) == 5
 
 
 def test_intrinsics_refuse_too_few_views_and_face_on_boards(views):
