@@ -62,10 +62,16 @@ def _is_number(v: Any) -> bool:
 
 
 def _number(name: str, v: Any) -> float:
-    """`v` as a finite float, or CalibrationError naming the field (a bool or a string is not a number)."""
-    if not _is_number(v):
+    """`v` as a finite float, or CalibrationError naming the field. A bool is not a number; a
+    string that is one is (PyYAML reads `1e-5`, without a dot, as a string)."""
+    x: float | None = float(v) if _is_number(v) else None
+    if isinstance(v, str):
+        try:
+            x = float(v.strip())
+        except ValueError:
+            pass
+    if x is None:
         raise CalibrationError(f"calibration field {name}: expected a number (got {v!r})")
-    x = float(v)
     if not np.isfinite(x):
         raise CalibrationError(f"calibration field {name}: must be a finite number (got {x})")
     return x
@@ -73,15 +79,23 @@ def _number(name: str, v: Any) -> float:
 
 def _array(name: str, v: Any, shape: tuple[int, ...]) -> np.ndarray:
     """`v` (nested lists of numbers) as a finite float array of `shape`, or CalibrationError."""
-    what = f"a {shape[0]}-vector" if len(shape) == 1 else f"a {shape[0]}x{shape[1]} matrix (a list of rows)"
-    try:
-        a = np.asarray(v)
-    except ValueError:  # ragged nesting
-        raise CalibrationError(f"calibration field {name}: expected {what} of numbers") from None
-    if a.dtype.kind not in "iuf":
-        raise CalibrationError(f"calibration field {name}: expected {what} of numbers (got {v!r})"[:200])
+    what = f"a {shape[0]}-vector" if len(shape) == 1 else f"a {shape[0]}x{shape[1]} matrix, a list of rows"
+    if isinstance(v, np.ndarray) and v.dtype.kind in "iuf":
+        a = v
+    else:
+        try:
+            a = np.asarray(v, dtype=object)
+        except ValueError:  # ragged nesting numpy cannot even hold
+            raise CalibrationError(f"calibration field {name}: expected {what} of numbers") from None
     if a.shape != shape:
-        raise CalibrationError(f"calibration field {name}: expected shape {shape}, got {a.shape}")
+        raise CalibrationError(f"calibration field {name}: expected shape {shape} ({what}), got {a.shape}")
+    if a.dtype == object:
+        out = np.empty(shape)
+        for idx, x in np.ndenumerate(a):
+            if isinstance(x, str) or not _is_number(x):
+                x = _number(f"{name}{list(idx)}", x)
+            out[idx] = float(x)
+        a = out
     a = a.astype(float)
     if not np.all(np.isfinite(a)):
         raise CalibrationError(f"calibration field {name}: not finite ({_fmt(a)})")
@@ -116,7 +130,7 @@ def _intrinsics(d: Any) -> dict[str, Any]:
             raise CalibrationError(f"calibration field intrinsics.{k}: focal length must be > 0 px (got {out[k]:g})")
     if "dist" in d:
         dist = d["dist"]
-        if not isinstance(dist, list | tuple) or not all(_is_number(x) for x in dist):
+        if not isinstance(dist, list | tuple):
             raise CalibrationError(f"calibration field intrinsics.dist: expected a list of numbers (got {dist!r})")
         if len(dist) not in _DIST_LENGTHS:
             raise CalibrationError(

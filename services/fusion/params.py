@@ -9,17 +9,36 @@ on bench seeds >= 1000 only (see docs/fusion.md); evaluation seeds never fed bac
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 SENSORS = frozenset({"imu", "tof", "vision"})
+_GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
 
 
 class ParamsError(ValueError):
     """A parameter file or value that cannot be used; the message names the field."""
+
+
+def _yaml_number(v: Any) -> float | None:
+    """A number from YAML as float, else None (a bool is not a number). PyYAML reads `1e-5`
+    and `2e3` (no dot, or no exponent sign) as strings, so a string that is a number counts."""
+    if isinstance(v, bool):
+        return None
+    if isinstance(v, int | float):
+        return float(v)
+    if isinstance(v, str):
+        try:
+            return float(v.strip())
+        except ValueError:
+            return None
+    return None
 
 
 @dataclass(frozen=True)
@@ -120,20 +139,32 @@ class Params:
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool):
+            default = f.default
+            if isinstance(default, bool):
+                if not isinstance(v, bool | np.bool_):
+                    raise ParamsError(f"fusion parameter {f.name}: expected true or false (got {v!r})")
                 continue
-            if not isinstance(v, (int, float)) or v != v:
-                raise ParamsError(f"fusion parameter {f.name}: must be a number (got {v!r})")
+            if isinstance(default, int):
+                if not isinstance(v, numbers.Integral) or isinstance(v, bool | np.bool_):
+                    raise ParamsError(f"fusion parameter {f.name}: expected a whole number (got {v!r})")
+            elif not isinstance(v, numbers.Real) or isinstance(v, bool | np.bool_) or not math.isfinite(v):
+                raise ParamsError(f"fusion parameter {f.name}: must be a finite number (got {v!r})")
             if v < 0:
                 raise ParamsError(f"fusion parameter {f.name}: must be >= 0 (got {v})")
         for name in ("rcm_every", "alpha_window"):
-            if int(getattr(self, name)) < 1:
-                raise ParamsError(f"fusion parameter {name}: must be >= 1")
-        for name in ("tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms"):
+            if getattr(self, name) < 1:
+                raise ParamsError(f"fusion parameter {name}: must be >= 1 (got {getattr(self, name)})")
+        for name in ("tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", *_GATES):
             if not getattr(self, name) > 0:
                 raise ParamsError(f"fusion parameter {name}: must be > 0 (got {getattr(self, name)})")
         if self.max_age_ms > self.history_ms:
             raise ParamsError("fusion parameter max_age_ms: must not exceed history_ms")
+        for lo, hi in (("tof_min_mm", "tof_max_mm"), ("depth_min_m", "depth_max_m")):
+            if not getattr(self, lo) < getattr(self, hi):
+                raise ParamsError(
+                    f"fusion parameters {lo} ({getattr(self, lo)}) and {hi} ({getattr(self, hi)}): "
+                    f"{lo} must be less than {hi}"
+                )
 
     @property
     def output_delay_ns(self) -> int:
@@ -150,16 +181,26 @@ class Params:
         if not isinstance(d, dict):
             raise ParamsError(f"{where}: expected a mapping of parameter names to values")
         names = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(d) - set(names))
+        unknown = sorted(str(k) for k in d if k not in names)
         if unknown:
             raise ParamsError(f"{where}: unknown parameter(s) {', '.join(unknown)}")
         out: dict[str, Any] = {}
         for k, v in d.items():
-            default = getattr(cls, k)
-            try:
-                out[k] = bool(v) if isinstance(default, bool) else type(default)(v)
-            except (TypeError, ValueError):
-                raise ParamsError(f"{where}: parameter {k}: expected a number (got {v!r})") from None
+            default = names[k].default
+            if isinstance(default, bool):
+                if not isinstance(v, bool):  # YAML true/false; "false", "maybe" and 5 are not
+                    raise ParamsError(f"{where}: parameter {k}: expected true or false (got {v!r})")
+                out[k] = v
+            else:
+                x = _yaml_number(v)
+                if x is None:
+                    raise ParamsError(f"{where}: parameter {k}: expected a number (got {v!r})")
+                if isinstance(default, int):
+                    if not x.is_integer():
+                        raise ParamsError(f"{where}: parameter {k}: expected a whole number (got {v!r})")
+                    out[k] = int(x)
+                else:
+                    out[k] = x
         try:
             return cls(**out)
         except ParamsError as e:
@@ -173,23 +214,28 @@ class Params:
             doc = yaml.safe_load(p.read_text())
         except OSError as e:
             raise ParamsError(f"{p}: cannot read ({e.strerror or e})") from None
-        except yaml.YAMLError:
-            raise ParamsError(f"{p}: not valid YAML") from None
+        except UnicodeDecodeError:
+            raise ParamsError(f"{p}: not a text/YAML file (a parameter file is YAML)") from None
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+            raise ParamsError(f"{p}: not valid YAML{at}") from None
         if isinstance(doc, dict) and "fusion_params" in doc:
             doc = doc["fusion_params"]
         return cls.from_dict(doc or {}, where=str(p))
 
 
 def parse_sensors(text: str | None) -> frozenset[str]:
-    """'imu,tof,vision' -> frozenset; ValueError naming an unknown sensor."""
-    if text is None or text.strip() in ("", "all"):
+    """'imu,tof,vision' (or 'all'; None: all) -> frozenset; ParamsError naming an unknown
+    sensor or an empty list ("" and "," alike)."""
+    if text is None or text.strip() == "all":
         return SENSORS
     out = frozenset(s.strip() for s in text.split(",") if s.strip())
     bad = sorted(out - SENSORS)
     if bad:
         raise ParamsError(f"--sensors: unknown sensor(s) {', '.join(bad)} (choose from imu, tof, vision)")
     if not out:
-        raise ParamsError("--sensors: empty")
+        raise ParamsError(f"--sensors: empty ({text!r}); give a comma list of imu, tof, vision, or all")
     return out
 
 

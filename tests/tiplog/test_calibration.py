@@ -64,8 +64,10 @@ REFLECTION = [[1, 0, 0], [0, 1, 0], [0, 0, -1]]
         ("latency_ms.gyro", "fast", ("latency_ms.gyro", "expected a number", "'fast'")),
         ("latency_ms", [1, 2], ("latency_ms", "mapping")),
         ("intrinsics", "d405", ("intrinsics", "mapping")),
-        ("p_imu_tool_m", ["a", "b", "c"], ("p_imu_tool_m", "3-vector of numbers")),
+        ("p_imu_tool_m", ["0.01", "b", 0.3], ("p_imu_tool_m[1]", "expected a number", "'b'")),
         ("p_imu_tool_m", [[1, 2], [3]], ("p_imu_tool_m", "3-vector")),
+        ("p_imu_tool_m", "abc", ("p_imu_tool_m", "3-vector")),
+        ("intrinsics.dist", [0.1, "x", 0, 0, 0], ("intrinsics.dist[1]", "'x'")),
         ("R_tool_imu", R_NOT_ROTATION, ("R_tool_imu", "not a rotation matrix")),
         ("R_tool_imu", REFLECTION, ("R_tool_imu", "not a rotation matrix", "det -1")),
         ("intrinsics.fx", -5.0, ("intrinsics.fx", "> 0")),
@@ -83,6 +85,15 @@ def test_a_bad_field_is_refused_by_name(tmp_path, bench_dict, path, value, needl
     assert "\n" not in msg and msg.startswith(str(p))
     for n in needles:
         assert n in msg, msg
+
+
+def test_numbers_pyyaml_reads_as_strings_are_numbers(tmp_path, bench_dict):
+    """PyYAML (YAML 1.1) reads `2.6e3` and `65e-2` as strings: a hand-written file may hold them."""
+    assert yaml.safe_load("a: 2.6e3\nb: 65e-2") == {"a": "2.6e3", "b": "65e-2"}
+    d = _set(bench_dict, "rcm_base_m", ["65e-2", *bench_dict["rcm_base_m"][1:]])
+    d = _set(d, "latency_ms.gyro", "6.5e0")
+    cal = Calibration.load_yaml(_write(tmp_path, d))
+    assert cal.rcm_base_m[0] == 0.65 and cal.latency_ms["gyro"] == 6.5
 
 
 def test_the_camera_pose_must_be_a_rigid_transform(tmp_path, bench_dict):
