@@ -9,6 +9,7 @@ import importlib
 import sys
 import traceback
 from collections.abc import Sequence
+from typing import NoReturn
 
 from tiplog import __version__
 from tiplog.config import ConfigError
@@ -29,8 +30,18 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class Parser(argparse.ArgumentParser):
+    """A mistake on the command line (an unknown option, a value of the wrong kind) is one line
+    naming it and where the usage is, exit status 2, like every other user error; `--help`
+    still prints the whole usage. Subcommands' parsers are of this class too (argparse makes
+    sub-parsers of their parent's class)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="tiplog",
         description="Record how a hand-held laparoscopic instrument moves: IMU, ToF and camera fused under the trocar's remote centre of motion.",
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import sys
 from pathlib import Path
 
@@ -20,10 +21,12 @@ import yaml
 
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.calibration_fits.hand_eye import fit_hand_eye
+from tiplog.cliargs import whole
 from tiplog.geometry import quat_to_rot, rot_to_quat
 from tiplog.userio import UserError, atomic_output, input_file, output_file
 
 TOOL = ("tool_x_m", "tool_y_m", "tool_z_m", "tool_qx", "tool_qy", "tool_qz", "tool_qw")
+MIN_FIT_POSES = 3  # fit_hand_eye's minimum
 MARKER = ("marker_x_m", "marker_y_m", "marker_z_m", "marker_qx", "marker_qy", "marker_qz", "marker_qw")
 
 
@@ -37,17 +40,20 @@ def _poses(rows: np.ndarray) -> np.ndarray:
 def read_pose_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """(T_base_tool, T_camera_marker), each (n, 4, 4), from the documented CSV."""
     p = input_file(path, "pose CSV file")
-    with open(p, newline="") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in TOOL + MARKER if c not in (reader.fieldnames or [])]
-        if missing:
-            raise UserError(f"{p}: missing column(s) {', '.join(missing)}")
-        vals = []
-        for k, row in enumerate(reader, start=2):
-            try:
-                vals.append([float(row[c]) for c in TOOL + MARKER])
-            except (TypeError, ValueError):
-                raise UserError(f"{p}: line {k}: every pose column must be a number") from None
+    try:
+        text = p.read_text()
+    except UnicodeDecodeError:
+        raise UserError(f"{p}: not a text CSV file (expected the pose CSV described in docs/calibration.md)") from None
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    missing = [c for c in TOOL + MARKER if c not in (reader.fieldnames or [])]
+    if missing:
+        raise UserError(f"{p}: missing column(s) {', '.join(missing)}")
+    vals = []
+    for row in reader:
+        try:
+            vals.append([float(row[c]) for c in TOOL + MARKER])
+        except (TypeError, ValueError):
+            raise UserError(f"{p}: line {reader.line_num}: every pose column must be a number") from None
     a = np.asarray(vals, dtype=float).reshape(-1, 14)
     if not np.all(np.isfinite(a)):
         raise UserError(f"{p}: non-finite value in a pose column")
@@ -76,6 +82,11 @@ def run(args: argparse.Namespace) -> int:
         except CalibrationError as e:
             raise UserError(str(e)) from None
     B, C = read_pose_csv(args.poses)
+    if args.heldout and len(B) - args.heldout < MIN_FIT_POSES:
+        raise UserError(
+            f"--heldout {args.heldout} leaves {max(len(B) - args.heldout, 0)} of the {len(B)} poses in "
+            f"{args.poses} to fit (need at least {MIN_FIT_POSES})"
+        )
     res = fit_hand_eye(B, C, heldout=args.heldout)
     report = {
         "poses": res.poses,
@@ -103,6 +114,8 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("poses", help="CSV of robot tool poses and detected marker poses (see docs/calibration.md)")
     p.add_argument("--out", required=True, help="YAML to write: a calibration file with --base, else the result alone")
     p.add_argument("--base", help="calibration file whose T_base_camera the result replaces")
-    p.add_argument("--heldout", type=int, default=0, help="score the last N poses instead of fitting them")
+    p.add_argument(
+        "--heldout", type=whole(0), default=0, metavar="N", help="score the last N poses instead of fitting them"
+    )
     p.add_argument("--force", action="store_true", help="overwrite --out")
     p.set_defaults(func=run)

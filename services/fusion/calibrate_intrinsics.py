@@ -18,10 +18,12 @@ import yaml
 
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.calibration_fits.intrinsics import find_corners, fit_intrinsics
+from tiplog.cliargs import finite, whole
 from tiplog.mcap_io import read_messages
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 EXTS = (".png", ".jpg", ".jpeg", ".bmp")
+MIN_FIT_VIEWS = 5  # fit_intrinsics' minimum
 
 
 def _board(text: str) -> tuple[int, int]:
@@ -65,8 +67,6 @@ def iter_gray(source: str | Path, every: int = 1) -> Iterator[np.ndarray]:
 
 def run(args: argparse.Namespace) -> int:
     cols, rows = _board(args.board)
-    if not args.square_mm > 0:
-        raise UserError(f"--square-mm: must be > 0 (got {args.square_mm})")
     output_file(args.out, args.force)
     base = None
     if args.base:
@@ -85,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
             corners.append(c)
     if size is None:
         raise UserError(f"{args.images}: no camera images")
+    if args.heldout and len(corners) - args.heldout < MIN_FIT_VIEWS:
+        raise UserError(
+            f"--heldout {args.heldout} leaves {max(len(corners) - args.heldout, 0)} of the {len(corners)} views "
+            f"showing the whole board to fit (need at least {MIN_FIT_VIEWS})"
+        )
     res = fit_intrinsics(corners, size, cols, rows, args.square_mm * 1e-3, heldout=args.heldout)
     report = {
         "images": seen,
@@ -108,9 +113,15 @@ def run(args: argparse.Namespace) -> int:
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("images", help="folder of chessboard images, or an MCAP file with camera/image")
     p.add_argument("--board", default="9x6", help="inner corners COLSxROWS (default 9x6)")
-    p.add_argument("--square-mm", type=float, default=25.0, help="side of one square [mm]")
-    p.add_argument("--heldout", type=int, default=0, help="score the last N views with a board instead of fitting them")
-    p.add_argument("--every", type=int, default=1, help="use every N-th image")
+    p.add_argument("--square-mm", type=finite(0, 1000, lo_open=True), default=25.0, help="side of one square [mm]")
+    p.add_argument(
+        "--heldout",
+        type=whole(0),
+        default=0,
+        metavar="N",
+        help="score the last N views with a board instead of fitting them",
+    )
+    p.add_argument("--every", type=whole(1), default=1, metavar="N", help="use every N-th image")
     p.add_argument("--out", required=True, help="YAML to write: a calibration file with --base, else the result alone")
     p.add_argument("--base", help="calibration file whose intrinsics the result replaces")
     p.add_argument("--force", action="store_true", help="overwrite --out")

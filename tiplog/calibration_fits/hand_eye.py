@@ -124,8 +124,15 @@ def fit_hand_eye(
     B = np.asarray(T_base_tool, float)
     C = np.asarray(T_camera_marker, float)
     require(B.shape == C.shape and B.ndim == 3 and B.shape[1:] == (4, 4), FIT, "needs matching (n, 4, 4) pose lists")
+    require(heldout >= 0, FIT, f"the number of held-out poses must be 0 or more (got {heldout})")
     n_fit = len(B) - heldout
-    require(heldout >= 0 and n_fit >= 3, FIT, f"needs at least 3 poses to fit (got {n_fit} after {heldout} held out)")
+    require(
+        n_fit >= 3,
+        FIT,
+        f"needs at least 3 poses to fit; holding out the last {heldout} of {len(B)} leaves {max(n_fit, 0)}"
+        if heldout
+        else f"needs at least 3 poses to fit (got {len(B)})",
+    )
     X0, Y0 = closed_form(B[:n_fit], C[:n_fit])
     X, Y = refine(X0, Y0, B[:n_fit], C[:n_fit], rot_scale_m)
     d, a = _errors(X, Y, B[:n_fit], C[:n_fit])

@@ -59,8 +59,16 @@ def fit_intrinsics(
 ) -> IntrinsicsResult:
     """From per-view corners (cols*rows, 2) [px] of an image of size (width, height); the
     last `heldout` views are scored, not fitted. Needs 5+ fitting views."""
+    require(heldout >= 0, FIT, f"the number of held-out views must be 0 or more (got {heldout})")
     n_fit = len(corners) - heldout
-    require(n_fit >= 5, FIT, f"needs at least 5 views showing the whole board to fit (got {n_fit})")
+    require(
+        n_fit >= 5,
+        FIT,
+        f"needs at least 5 views showing the whole board to fit; holding out the last {heldout} of "
+        f"{len(corners)} leaves {max(n_fit, 0)}"
+        if heldout
+        else f"needs at least 5 views showing the whole board to fit (got {len(corners)})",
+    )
     obj = board_points(cols, rows, square_m)
     objs = [obj] * len(corners)
     imgs = [np.asarray(c, np.float32).reshape(-1, 1, 2) for c in corners]

@@ -102,3 +102,29 @@ def test_cli_reads_the_documented_csv_and_merges_into_a_calibration(tmp_path, ca
     bad.write_text("tool_x_m,tool_y_m\n1,2\n")
     assert main(["calibrate", "hand-eye", str(bad), "--out", str(tmp_path / "x.yaml")]) == 2
     assert "column" in capsys.readouterr().err
+
+
+def test_cli_refuses_what_leaves_nothing_to_fit_in_one_line(tmp_path, capsys):
+    B, C = _poses(10, 8, _true_camera())
+    csv = tmp_path / "poses.csv"
+    write_pose_csv(csv, B, C)
+    binary = tmp_path / "poses.mcap"
+    binary.write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)))
+    out = str(tmp_path / "x.yaml")
+    for argv, needles in (
+        ([str(csv), "--heldout", "100"], ("--heldout 100 leaves 0 of the 8 poses", "need at least 3")),
+        ([str(csv), "--heldout", "6"], ("--heldout 6 leaves 2 of the 8 poses",)),
+        ([str(binary)], (str(binary), "not a text CSV file")),
+    ):
+        assert main(["calibrate", "hand-eye", *argv, "--out", out]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1, err
+        for n in needles:
+            assert n in err[0], err[0]
+    with pytest.raises(SystemExit) as e:
+        main(["calibrate", "hand-eye", str(csv), "--heldout", "-1", "--out", out])
+    assert e.value.code == 2 and "--heldout: must be >= 0 (got -1)" in capsys.readouterr().err
+    with pytest.raises(DegenerateDataError, match="at least 3 poses to fit; holding out the last 8 of 8 leaves 0"):
+        fit_hand_eye(B, C, heldout=8)
+    with pytest.raises(DegenerateDataError, match="0 or more"):
+        fit_hand_eye(B, C, heldout=-1)

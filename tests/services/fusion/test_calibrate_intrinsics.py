@@ -126,6 +126,33 @@ def test_intrinsics_recover_the_true_projection_within_a_pixel(views, tmp_path, 
     assert main(argv) == 0
     got = Calibration.load_yaml(merged)
     assert abs(got.intrinsics["fx"] / CAM.fx - 1) < 0.01 and len(got.intrinsics["dist"]) == 5
+    capsys.readouterr()
+    # --heldout that leaves fewer than 5 views to fit says so with the numbers, in one line
+    argv = [
+        "calibrate",
+        "intrinsics",
+        str(folder),
+        "--every",
+        "4",
+        "--heldout",
+        "100",
+        "--out",
+        str(tmp_path / "y.yaml"),
+    ]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--heldout 100 leaves 0 of the 6 views" in err[0] and "at least 5" in err[0], err
+    for opt, value, needle in (
+        ("--every", "0", ">= 1"),
+        ("--every", "-1", ">= 1"),
+        ("--heldout", "-1", ">= 0"),
+        ("--square-mm", "inf", "finite"),
+        ("--square-mm", "0", "> 0"),
+    ):
+        with pytest.raises(SystemExit) as e:
+            main(["calibrate", "intrinsics", str(folder), opt, value, "--out", str(tmp_path / "y.yaml")])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1 and opt in err[0] and needle in err[0], err
 
 
 def test_intrinsics_refuse_too_few_views_and_face_on_boards(views):
