@@ -7,6 +7,8 @@ import json
 import sys
 import time
 
+from tiplog.cliargs import finite, whole
+
 
 def register(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="sim_command", metavar="ACTION", required=True)
@@ -20,9 +22,11 @@ def register(p: argparse.ArgumentParser) -> None:
         "--out", required=True, metavar="FILE", help="MCAP file to write (never overwritten without --force)"
     )
     g.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--seed", type=whole(0), default=0, help="random seed, 0 or more (default 0)")
     g.add_argument("--tier", choices=["measurement", "pixel"], default="measurement")
-    g.add_argument("--duration", type=float, help="seconds (default: the scenario's)")
+    g.add_argument(
+        "--duration", type=finite(0, 1e5, lo_open=True), metavar="S", help="seconds (default: the scenario's)"
+    )
     g.add_argument(
         "--set",
         dest="overrides",
@@ -57,12 +61,19 @@ def _progress(quiet: bool):
 def _generate(args: argparse.Namespace) -> int:
     from services.bench.scenario import load_scenario
     from services.bench.session import generate
+    from services.bench.simulation import shortest_duration
     from tiplog.userio import UserError, atomic_output, output_file
 
     output_file(args.out, args.force)  # before any work: a bad --out costs nothing
     sc = load_scenario(args.scenario, args.overrides)  # ConfigError -> exit 2 with the field named
-    if args.duration is not None and args.duration <= 0:
-        raise UserError(f"--duration must be positive (got {args.duration})")
+    duration = args.duration if args.duration is not None else sc.duration_s
+    shortest, stream, rate = shortest_duration(sc)
+    if duration is not None and duration < shortest:
+        what = "--duration" if args.duration is not None else f"the scenario's duration_s ({args.scenario})"
+        raise UserError(
+            f"{what}: {duration:g} s holds no sample of the {stream} stream at {rate:g} Hz; "
+            f"give at least {shortest:.3f} s"
+        )
     # Written under a temporary name and renamed when complete: Ctrl-C leaves nothing under --out.
     with atomic_output(args.out, args.force) as tmp:
         summary = generate(

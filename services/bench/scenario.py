@@ -9,9 +9,9 @@ distal), imu, camera (x right, y down, z forward).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
 
 from tiplog.camera_model import CameraModel
 from tiplog.config import ConfigError, format_validation_error, parse_override, read_yaml_file, set_path
@@ -32,9 +32,16 @@ except ImportError:  # pragma: no cover - without OpenCV or before render.py lan
         model_config = ConfigDict(extra="allow")
 
 
+def _increasing(v: tuple[float, float]) -> tuple[float, float]:
+    if not v[0] <= v[1]:
+        raise ValueError("a range is [min, max] with min <= max")
+    return v
+
+
 F = Field
-Vec3 = tuple[float, float, float]
-Vec2 = tuple[float, float]
+Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+Vec2 = tuple[FiniteFloat, FiniteFloat]
+Range2 = Annotated[Vec2, AfterValidator(_increasing)]  # (min, max)
 
 
 # The bench's camera, as far as the scenario changes the robot helper's defaults: above the
@@ -90,7 +97,7 @@ class AccelConfig(_M):
     rate_hz: float = F(240.0, gt=1.0, le=2000.0)
     noise_sd_mps2: float = F(0.072, ge=0.0, le=2.0, description="per axis per sample: 0.30-0.55 deg tilt SD")
     noise_pose_spread: float = F(0.15, ge=0.0, le=1.0, description="relative spread of the noise SD across poses")
-    noise_factor_range: Vec2 = F((0.73, 1.29), description="clip of that factor: 0.30-0.55 deg across holds")
+    noise_factor_range: Range2 = F((0.73, 1.29), description="clip of that factor: 0.30-0.55 deg across holds")
     bias_sd_mps2: float = F(0.002, ge=0.0, le=1.0, description="keeps the norm within 0.06 % of g")
     scale_sd: float = F(0.0002, ge=0.0, le=0.1, description="norm within 0.06 % of g")
     pose_tilt_sd_deg: float = F(0.21, ge=0.0, le=10.0, description="pose-locked direction error (held out 0.21)")
@@ -109,7 +116,7 @@ class TofConfig(_M):
     rate_hz: float = F(100.0, gt=1.0, le=1000.0)
     noise_sd_mm: float = F(3.2, ge=0.0, le=50.0, description="per sample, 2.95-3.43 mm")
     noise_pose_spread: float = F(0.05, ge=0.0, le=1.0)
-    noise_factor_range: Vec2 = F((0.92, 1.07), description="clip of that factor: 2.95-3.43 mm across holds")
+    noise_factor_range: Range2 = F((0.92, 1.07), description="clip of that factor: 2.95-3.43 mm across holds")
     pose_sd_mm: float = F(3.04, ge=0.0, le=50.0, description="pose-locked systematic error across poses")
     pose_corr_deg: float = F(4.0, gt=0.0, le=180.0)
     pose_corr_m: float = F(0.008, gt=0.0, le=1.0)
@@ -173,7 +180,7 @@ class VisionConfig(_M):
     # agreeing on a wrong end of the shaft (benchmarks/vision_accuracy.py, teleop seeds 1-3: 1
     # frame in 522 with a junction, 22 mm off). The paper's error sizes have no such tail.
     junction_outlier_prob: float = F(0.002, ge=0.0, le=1.0, description="per frame with a junction")
-    junction_outlier_mm: Vec2 = F((5.0, 25.0), description="range of a gross junction depth error")
+    junction_outlier_mm: Range2 = F((5.0, 25.0), description="range of a gross junction depth error")
     junction_min_sin2: float = F(0.45, ge=0.0, le=1.0, description="reject when 1-(d.u)^2 is below")
     gate_iou_min: float = F(0.75, ge=0.0, le=1.0)
     gate_line_angle_deg: float = F(0.5, gt=0.0, le=10.0)
@@ -182,7 +189,7 @@ class VisionConfig(_M):
     metric_scale_rest: float = F(0.52, gt=0.0, le=10.0, description="gate metrics' spread, in gate thresholds")
     metric_scale_per_px: float = F(0.04, ge=0.0, le=1.0, description="growth per px/frame of image motion")
     wrong_seg_prob: float = F(0.04, ge=0.0, le=1.0)
-    wrong_seg_deg: Vec2 = F((2.0, 6.0), description="range of a wrong line's error")
+    wrong_seg_deg: Range2 = F((2.0, 6.0), description="range of a wrong line's error")
     min_visible_px: float = F(60.0, ge=0.0, le=4000.0, description="visible shaft length in the image")
     processing_ms: float = F(113.0, ge=0.0, le=5000.0)
     processing_jitter_ms: float = F(12.0, ge=0.0, le=1000.0)
@@ -229,6 +236,15 @@ class Scenario(_M):
     calibration: CalibrationErrorConfig = F(default_factory=CalibrationErrorConfig)
     output: OutputConfig = F(default_factory=OutputConfig)
     render: RenderParams = F(default_factory=RenderParams, description="pixel tier only")
+
+    @field_validator("protocol")
+    @classmethod
+    def _known_protocol(cls, v: str) -> str:
+        from services.bench.robot.protocols import PROTOCOLS
+
+        if v not in PROTOCOLS:
+            raise ValueError(f"unknown protocol; choose from {', '.join(PROTOCOLS)}")
+        return v
 
 
 # name -> overrides of the defaults

@@ -49,6 +49,26 @@ def test_out_of_range_is_named():
         load_scenario("static", {"vision.junction_min_sin2": 2.0})
 
 
+def test_unknown_protocol_reversed_range_and_non_finite_are_named():
+    with pytest.raises(ConfigError, match=r"protocol: .*unknown protocol; choose from static.*\(got 'bogus'\)"):
+        load_scenario("static", ["protocol=bogus"])
+    for field in ("tof.noise_factor_range", "accel.noise_factor_range", "vision.wrong_seg_deg"):
+        with pytest.raises(ConfigError, match=rf"{field}: .*min <= max"):
+            load_scenario("static", [f"{field}=[2,1]"])
+    assert load_scenario("static", ["tof.noise_factor_range=[1,1]"]).tof.noise_factor_range == (1.0, 1.0)
+    with pytest.raises(ConfigError, match=r"tof\.noise_factor_range\.0: .*finite"):
+        load_scenario("static", ["tof.noise_factor_range=[.nan,1]"])
+    with pytest.raises(ConfigError, match=r"instrument\.imu_lateral_m\.1: .*finite"):
+        load_scenario("static", ["instrument.imu_lateral_m=[0,.inf]"])
+
+
+def test_shortest_duration_holds_a_sample_of_every_stream():
+    from services.bench.simulation import shortest_duration
+
+    assert shortest_duration(load_scenario("sweeps")) == (0.013, "tof", 100.0)
+    assert shortest_duration(load_scenario("sweeps", ["gyro.rate_hz=2"])) == (0.503, "gyro", 2.0)
+
+
 def test_yaml_file_with_base(tmp_path):
     f = tmp_path / "mine.yaml"
     f.write_text("base: sweeps\ntof:\n  noise_sd_mm: 3.0\nvision:\n  wrong_seg_prob: 0.1\n")
