@@ -17,6 +17,7 @@ from torch.nn import functional as F
 
 from services.vision.dataset import LabeledFrames, backgrounds, composite, split_by_pose
 from services.vision.network import NetSpec, ShaftUNet, save_checkpoint, to_input
+from tiplog.userio import UserError
 
 log = logging.getLogger(__name__)
 
@@ -99,12 +100,18 @@ def train(
     history: list[float] = []
     start = 0
     if resume and state_path.exists():
-        st = torch.load(state_path, map_location="cpu", weights_only=False)
-        model.load_state_dict(st["model"])
-        opt.load_state_dict(st["optim"])
-        start, history = int(st["epoch"]), list(st["history"])
-        rng.bit_generator.state = st["rng"]
-        torch.set_rng_state(st["torch_rng"])
+        try:
+            st = torch.load(state_path, map_location="cpu", weights_only=False)
+            model.load_state_dict(st["model"])
+            opt.load_state_dict(st["optim"])
+            start, history = int(st["epoch"]), list(st["history"])
+            rng.bit_generator.state = st["rng"]
+            torch.set_rng_state(st["torch_rng"])
+        except Exception as e:  # noqa: BLE001 - a cut, foreign or mismatched file (another --input-step)
+            raise UserError(
+                f"{state_path}: not a training state this run can continue ({type(e).__name__}); "
+                "delete it, or train without --resume"
+            ) from None
         say(f"resumed after epoch {start} from {state_path}")
     say(f"{len(train_idx)} training frames, {len(test_idx)} held out (by pose); batch {opts.batch}, half composites")
     bgs = backgrounds(frames)

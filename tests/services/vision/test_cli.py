@@ -50,7 +50,9 @@ def test_run_refuses_to_overwrite_and_names_bad_inputs(recording, tmp_path, caps
     assert main(["vision", "run", str(recording), "--out", str(tmp_path / "o.mcap"), "--weights", str(notmcap)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "checkpoint" in err[0]
-    assert main(["vision", "run", str(recording), "--out", str(tmp_path / "o.mcap"), "--workers", "0"]) == 2
+    with pytest.raises(SystemExit) as e:  # refused while parsing the options
+        main(["vision", "run", str(recording), "--out", str(tmp_path / "o.mcap"), "--workers", "0"])
+    assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--workers" in err[0]
     assert not (tmp_path / "o.mcap").exists()
@@ -91,3 +93,57 @@ def test_run_without_calibration_says_so(rendered, camera, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no calibration" in err[0] and "--calibration" in err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "needles"),
+    [
+        (["train", "r.mcap", "--out", "n.pt", "--seed", "-5"], ("--seed", ">= 0")),
+        (["train", "r.mcap", "--out", "n.pt", "--lr", "inf"], ("--lr", "finite")),
+        (["train", "r.mcap", "--out", "n.pt", "--lr", "0"], ("--lr", "> 0")),
+        (["train", "r.mcap", "--out", "n.pt", "--input-step", "1000"], ("--input-step", "<= 22")),
+        (["train", "r.mcap", "--out", "n.pt", "--batch", "1"], ("--batch", ">= 2")),
+        (["train", "r.mcap", "--out", "n.pt", "--threads", "-1"], ("--threads", ">= 0")),
+        (["run", "r.mcap", "--out", "o.mcap", "--threads", "5000"], ("--threads", "<=")),
+        (["run", "r.mcap", "--out", "o.mcap", "--threads", "100000"], ("--threads", "<=")),
+        (["run", "r.mcap", "--out", "o.mcap", "--threads", "-1"], ("--threads", ">= 0")),
+        (["run", "r.mcap", "--out", "o.mcap", "--workers", "0"], ("--workers", ">= 1")),
+    ],
+)
+def test_option_values_are_refused_while_parsing(argv, needles, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["vision", *argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and len(err) == 1, err
+    for n in needles:
+        assert n in err[0], err[0]
+
+
+def test_train_refuses_too_few_frames_and_an_unreadable_resume_state(recording, tmp_path, capsys):
+    import torch
+
+    ck = tmp_path / "net.pt"
+    base = ["vision", "train", str(recording), "--out", str(ck), "--batch", "2", "--device", "cpu", "--threads", "1"]
+
+    def one_line(*needles):
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err and "Traceback" not in "".join(err), err
+        for n in needles:
+            assert n in err[-1], err[-1]
+
+    assert main([*base, "--every", "1000"]) == 2  # one labelled frame: nothing left to hold out
+    one_line("--every 1000", "1 labelled frame", "at least 2")
+    state = tmp_path / "net.pt.resume"
+    state.write_bytes(b"PK\x03\x04" + bytes(100))  # the start of a zip, cut short
+    assert main([*base, "--every", "5", "--resume"]) == 2
+    one_line(str(state), "not a readable training state")
+    torch.save({"something": "else"}, state)  # a whole file, but not a training state
+    assert main([*base, "--every", "5", "--resume"]) == 2
+    one_line(str(state), "not a training state this run can continue")
+    assert not ck.exists()
+    # --resume replaces <out> only when there is a state to continue; otherwise it needs --force
+    state.unlink()
+    ck.write_bytes(b"someone else's checkpoint")
+    assert main([*base, "--every", "5", "--resume"]) == 2
+    one_line(str(ck), "use --force")
+    assert ck.read_bytes() == b"someone else's checkpoint"
