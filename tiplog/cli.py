@@ -14,7 +14,7 @@ from typing import NoReturn
 from tiplog import __version__
 from tiplog.config import ConfigError
 from tiplog.service import setup_logging
-from tiplog.userio import UserError
+from tiplog.userio import UserError, forget_inputs
 
 # command -> (module providing register(parser), one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -62,6 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if func is None:
         parser.parse_args([args.command, "--help"])
         return 2
+    forget_inputs()  # the inputs an output may not replace are this command's alone
     try:
         return int(func(args) or 0)
     except ConfigError as e:

@@ -2,7 +2,9 @@
 what is wrong, exit status 2, no traceback (see `tiplog.cli.main`). Inputs are checked before
 any work starts; outputs are never overwritten without `--force` and are written under a
 temporary name in the same folder, renamed only when complete, so an interrupted command never
-leaves a half-written file under the final name."""
+leaves a half-written file under the final name. Every input checked here is remembered for the
+command, and an output that is the same file as one of them is refused, `--force` or not: the
+command would replace what it reads."""
 
 from __future__ import annotations
 
@@ -21,8 +23,34 @@ class UserError(Exception):
     """A mistake in what the user gave (a file, an option): printed as one line, exit 2."""
 
 
+# (path, what) of every input of the running command; `output_file` refuses these.
+_inputs: list[tuple[Path, str]] = []
+
+
+def register_input(path: str | os.PathLike, what: str = "input file") -> None:
+    """Remember `path` as read by this command, so that no output may replace it."""
+    _inputs.append((Path(path), what))
+
+
+def forget_inputs() -> None:
+    """A new command starts: none of its files is an input yet (`tiplog.cli.main`)."""
+    _inputs.clear()
+
+
+def _input_behind(p: Path) -> tuple[Path, str] | None:
+    """The registered input that `p` is (the same file, by any spelling or link), if any."""
+    for q, what in _inputs:
+        try:
+            if os.path.samefile(p, q):
+                return q, what
+        except OSError:  # either side gone or unreadable: not the same existing file
+            continue
+    return None
+
+
 def input_file(path: str | os.PathLike, what: str = "input file") -> Path:
-    """`path` as a readable, non-empty regular file, or UserError naming what is wrong."""
+    """`path` as a readable, non-empty regular file, or UserError naming what is wrong. The
+    file is registered as an input of the command (see `output_file`)."""
     p = Path(path)
     if not p.exists():
         raise UserError(f"{p}: no such {what}")
@@ -32,6 +60,7 @@ def input_file(path: str | os.PathLike, what: str = "input file") -> Path:
         raise UserError(f"{p}: permission denied (cannot read the {what})")
     if p.stat().st_size == 0:
         raise UserError(f"{p}: empty file")
+    register_input(p, what)
     return p
 
 
@@ -65,7 +94,8 @@ def truncation_note(path: Path, state: mcap_salvage.Salvage, messages: int, used
 
 def output_file(path: str | os.PathLike, force: bool = False) -> Path:
     """`path` as a place a new file may be written: its folder exists and is writable, and it
-    does not exist unless `force`; otherwise UserError."""
+    does not exist unless `force`; it is never an input of the command nor a device, pipe or
+    socket (`--force` or not); otherwise UserError."""
     p = Path(path)
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
@@ -74,8 +104,16 @@ def output_file(path: str | os.PathLike, force: bool = False) -> Path:
         raise UserError(f"{p}: folder {parent} is not writable")
     if p.is_dir():
         raise UserError(f"{p}: is a folder, expected a file name")
-    if p.exists() and not force:
-        raise UserError(f"{p}: file exists, use --force to overwrite it")
+    if p.exists():
+        same = _input_behind(p)
+        if same is not None:
+            q, what = same
+            named = f"the {what}" if str(q) == str(p) else f"the {what} {q}"
+            raise UserError(f"{p}: is also an input of this command ({named}); choose another output")
+        if not p.is_file():
+            raise UserError(f"{p}: not a regular file (a device, pipe or socket); choose a file name")
+        if not force:
+            raise UserError(f"{p}: file exists, use --force to overwrite it")
     return p
 
 
@@ -92,8 +130,7 @@ def atomic_output(path: str | os.PathLike, force: bool = False) -> Iterator[Path
     tmp_path.chmod(0o666 & ~umask)  # mkstemp's 0600 would be a surprise on the final file
     try:
         yield tmp_path
-        if final.exists() and not force:  # appeared while we worked
-            raise UserError(f"{final}: file exists, use --force to overwrite it")
+        output_file(final, force)  # again: it may have appeared while we worked
         os.replace(tmp_path, final)
     finally:
         if tmp_path.exists():

@@ -20,7 +20,7 @@ import yaml
 
 from services.fusion import calibrate_block, calibrate_data, calibrate_hand_eye, calibrate_intrinsics
 from tiplog.calibration_fits import DegenerateDataError
-from tiplog.userio import UserError, atomic_output, output_file
+from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 
 def _out(s: str) -> None:
@@ -39,9 +39,20 @@ def _fits(text: str) -> tuple[str, ...]:
     return names
 
 
+def _inputs_then_output(args: argparse.Namespace) -> None:
+    """Check the inputs, then --out, which must not be one of them; before any work."""
+    for rec in (args.recording, getattr(args, "latency", None)):
+        if rec:
+            input_mcap(rec)
+    if args.prior:
+        input_file(args.prior, "calibration file")
+    if args.out:
+        output_file(args.out, args.force)
+
+
 def run_block(args: argparse.Namespace) -> int:
     fits = _fits(args.fits)
-    output_file(args.out, args.force)  # refuse before any work
+    _inputs_then_output(args)
     data = calibrate_data.load(args.recording, args.prior)
     cal, report = calibrate_block.calibrate_block(data, fits)
     if args.latency:
@@ -61,8 +72,7 @@ def run_block(args: argparse.Namespace) -> int:
 def run_latency(args: argparse.Namespace) -> int:
     from services.fusion import calibrate_latency
 
-    if args.out:
-        output_file(args.out, args.force)  # refuse before any work
+    _inputs_then_output(args)
     data = calibrate_data.load(args.recording, args.prior)
     if data.prior is None:
         raise DegenerateDataError("latency: no starting constants: give --prior FILE")

@@ -19,7 +19,7 @@ import numpy as np
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.geometry import quat_to_rot
 from tiplog.mcap_io import read_messages, read_metadata
-from tiplog.userio import UserError, input_mcap
+from tiplog.userio import UserError, input_file, input_mcap
 
 TOPICS = (
     "bench/robot",
@@ -77,7 +77,7 @@ def load(path: str | Path, prior_file: str | Path | None = None) -> CalibrationD
     prior: Calibration | None = None
     try:
         if prior_file is not None:
-            prior = Calibration.load_yaml(prior_file)
+            prior = Calibration.load_yaml(input_file(prior_file, "calibration file"))
         elif any(k in meta for k in ("calibration", "calibration_as_calibrated")):
             prior = Calibration.from_mcap_metadata(meta, where=str(p))
     except CalibrationError as e:

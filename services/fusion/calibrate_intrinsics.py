@@ -20,7 +20,7 @@ from tiplog.calibration import Calibration, CalibrationError
 from tiplog.calibration_fits.intrinsics import find_corners, fit_intrinsics
 from tiplog.cliargs import finite, whole
 from tiplog.mcap_io import read_messages
-from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
+from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file, register_input
 
 EXTS = (".png", ".jpg", ".jpeg", ".bmp")
 MIN_FIT_VIEWS = 5  # fit_intrinsics' minimum
@@ -54,6 +54,7 @@ def iter_gray(source: str | Path, every: int = 1) -> Iterator[np.ndarray]:
         if not files:
             raise UserError(f"{p}: no image files ({', '.join(EXTS)}) in the folder")
         for f in files[::every]:
+            register_input(f, "chessboard image")  # --out may not replace it
             img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
             if img is None:
                 raise UserError(f"{f}: not a readable image")

@@ -123,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.json_out:
         raise UserError("--json: required (the result file to write)")
     session = input_mcap(args.session)
+    if args.estimate:
+        input_mcap(args.estimate)  # an input before the outputs, which must not replace it
     output_file(args.json_out, args.force)
     plots = _plots_dir(args.plots)
     jobs = _jobs(args.jobs)

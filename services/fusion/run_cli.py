@@ -48,7 +48,6 @@ def register(p: argparse.ArgumentParser) -> None:
 def load_inputs(args: argparse.Namespace) -> tuple[Path, Calibration, Params, frozenset[str]]:
     """Check everything the user gave before any work; UserError names what is wrong."""
     src = input_mcap(args.recording)
-    output_file(args.out, args.force)
     try:
         sensors = parse_sensors(args.sensors)
         params = Params.load_yaml(input_file(args.params, "parameter file")) if args.params else Params()
@@ -62,6 +61,7 @@ def load_inputs(args: argparse.Namespace) -> tuple[Path, Calibration, Params, fr
             calib = Calibration.from_mcap_metadata(meta, where=str(src))
     except CalibrationError as e:
         raise UserError(str(e)) from None
+    output_file(args.out, args.force)  # after the inputs: it must not be one of them
     check_streams(src, sensors, announced_rates(meta))
     return src, calib, params, sensors
 

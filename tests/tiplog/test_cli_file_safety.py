@@ -1,0 +1,121 @@
+"""What the user has is never lost: no command's output replaces one of its own inputs (by any
+spelling, `--force` or not), nor a device or pipe. Every case: exit status 2, one line on
+stderr, the inputs byte-identical afterwards and no file left behind."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+
+import cv2
+import numpy as np
+import pytest
+
+from services.fusion.calibrate_hand_eye import write_pose_csv
+from tests.services.fusion.sessions import bench_session
+from tests.services.fusion.test_calibrate_hand_eye import _poses, _true_camera
+from tests.services.fusion.test_calibrate_intrinsics import _views
+from tiplog.calibration import Calibration
+from tiplog.cli import main
+from tiplog.mcap_io import read_metadata
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    return bench_session(tmp_path_factory, "sweeps", seed=12, duration_s=6.0)
+
+
+@pytest.fixture(scope="module")
+def estimate(session, tmp_path_factory):
+    out = tmp_path_factory.mktemp("safety_est") / "est.mcap"
+    assert main(["fusion", "run", str(session), "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def board_views():
+    return _views(11, 8)
+
+
+@pytest.fixture
+def files(tmp_path, session, estimate, board_views):
+    """A folder with a copy of every kind of input the commands read (the originals stay safe
+    whatever a command does)."""
+    d = tmp_path / "d"
+    d.mkdir()
+    (d / "in.mcap").write_bytes(session.read_bytes())
+    (d / "est.mcap").write_bytes(estimate.read_bytes())
+    Calibration.from_mcap_metadata(read_metadata(session)).save_yaml(d / "cal.yaml")
+    rng = np.random.default_rng(0)
+    rows = ["t_s,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"]
+    rows += [",".join(f"{v:.6f}" for v in (i / 100, *rng.normal(0, 0.01, 3), 0.0, 0.0, 9.81)) for i in range(200)]
+    (d / "imu.csv").write_text("\n".join(rows) + "\n")
+    write_pose_csv(d / "poses.csv", *_poses(10, 30, _true_camera()))
+    (d / "board").mkdir()
+    for k, img in enumerate(board_views):
+        cv2.imwrite(str(d / "board" / f"v{k:02d}.png"), img)
+    return d
+
+
+def snapshot(d) -> dict[str, str]:
+    return {
+        str(p.relative_to(d)): hashlib.sha1(p.read_bytes()).hexdigest() if p.is_file() else "folder"
+        for p in sorted(d.rglob("*"))
+    }
+
+
+def one_line_exit_2(capsys, argv, *needles) -> str:
+    rc = main([str(a) for a in argv])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2, err
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    for n in needles:
+        assert n in err[0], err[0]
+    return err[0]
+
+
+# (command line with {d} for the folder of inputs, the output that is an input)
+SAME = [
+    ("fusion run {d}/in.mcap --out {d}/in.mcap --force --quiet", "in.mcap"),
+    ("fusion run {d}/in.mcap --out {d}/board/../././in.mcap --force --quiet", "board/../././in.mcap"),
+    ("fusion run {d}/in.mcap --calibration {d}/cal.yaml --out {d}/cal.yaml --force --quiet", "cal.yaml"),
+    ("fusion attitude {d}/imu.csv {d}/imu.csv --force", "imu.csv"),
+    ("calibrate block {d}/in.mcap --out {d}/in.mcap --force", "in.mcap"),
+    ("calibrate block {d}/in.mcap --prior {d}/cal.yaml --out {d}/cal.yaml --force", "cal.yaml"),
+    ("calibrate latency {d}/in.mcap --out {d}/in.mcap --force", "in.mcap"),
+    ("calibrate hand-eye {d}/poses.csv --out {d}/poses.csv --force", "poses.csv"),
+    ("calibrate hand-eye {d}/poses.csv --base {d}/cal.yaml --out {d}/cal.yaml --force", "cal.yaml"),
+    ("calibrate intrinsics {d}/board --out {d}/board/v00.png --force", "board/v00.png"),
+    ("calibrate intrinsics {d}/board --base {d}/cal.yaml --out {d}/cal.yaml --force", "cal.yaml"),
+    ("vision run {d}/in.mcap --out {d}/in.mcap --force --quiet --threads 1 --workers 1", "in.mcap"),
+    ("vision train {d}/in.mcap --out {d}/in.mcap --force --epochs 1 --batch 2 --device cpu --threads 1", "in.mcap"),
+    ("evaluate {d}/in.mcap --estimate {d}/est.mcap --json {d}/in.mcap --force", "in.mcap"),
+    ("evaluate {d}/in.mcap --estimate {d}/est.mcap --json {d}/est.mcap --force", "est.mcap"),
+]
+
+
+@pytest.mark.parametrize("line,out", SAME, ids=[s[0].split(" {d}")[0] + f" -> {s[1]}" for s in SAME])
+def test_an_output_that_is_an_input_is_refused_even_with_force(files, capsys, line, out):
+    before = snapshot(files)
+    one_line_exit_2(capsys, line.format(d=files).split(), f"{files / out}: is also an input of this command")
+    assert snapshot(files) == before
+
+
+def test_a_symlink_or_hard_link_to_an_input_is_the_input(files, capsys):
+    os.symlink(files / "in.mcap", files / "link.mcap")
+    os.link(files / "in.mcap", files / "hard.mcap")
+    before = snapshot(files)
+    for name in ("link.mcap", "hard.mcap"):
+        argv = ["fusion", "run", files / "in.mcap", "--out", files / name, "--force", "--quiet"]
+        one_line_exit_2(capsys, argv, f"{files / name}: is also an input", f"the MCAP file {files / 'in.mcap'}")
+    assert snapshot(files) == before and (files / "link.mcap").is_symlink()
+
+
+def test_a_pipe_is_never_replaced_by_an_output(tmp_path, capsys):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for force in ([], ["--force"]):
+        argv = ["sim", "generate", "--scenario", "sweeps", "--duration", "2", "--quiet", "--out", fifo, *force]
+        one_line_exit_2(capsys, argv, f"{fifo}: not a regular file")
+    assert stat.S_ISFIFO(fifo.lstat().st_mode) and [p.name for p in tmp_path.iterdir()] == ["fifo"]
