@@ -4,7 +4,8 @@ frame with z up, heading arbitrary), from gyroscope and accelerometer samples.
 IN.csv has a header row naming at least the columns t_s, gyr_x, gyr_y, gyr_z [rad/s],
 acc_x, acc_y, acc_z [m/s^2], in any order (other columns are ignored; lines starting with '#'
 are comments). Time must not decrease; any rate, jitter and dropped rows are fine. An empty or
-NaN gyroscope or accelerometer value marks that sensor missing in its row. OUT.csv gets
+NaN gyroscope or accelerometer value marks that sensor missing in its row; an infinite one, or
+one beyond +-1000 rad/s or +-5000 m/s^2, is refused with its line and column. OUT.csv gets
 t_s, qw, qx, qy, qz for every input row.
 """
 
@@ -21,6 +22,11 @@ import numpy as np
 from tiplog.userio import UserError, atomic_output, input_file
 
 COLUMNS = ("t_s", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")
+# Beyond any MEMS sensor's range (gyroscopes reach about 70 rad/s = 4000 deg/s, accelerometers
+# about 200 g): a value past these is a unit or transcription error, and 1e300 overflowed the
+# filter into a traceback.
+MAX_GYR_RADPS = 1000.0
+MAX_ACC_MPS2 = 5000.0
 _MISSING = {"", "nan", "NaN", "NAN", "-nan", "na", "NA", "null"}
 
 
@@ -79,8 +85,19 @@ def read_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if back.any():
         k = int(np.argmax(back)) + 1
         raise UserError(
-            f"{p}: line {lines[k + 1][0]}, column t_s: time goes backwards ({t[k]!r} s after {t[k - 1]!r} s)"
+            f"{p}: line {lines[k + 1][0]}, column t_s: time goes backwards "
+            f"({float(t[k])!r} s after {float(t[k - 1])!r} s)"
         )
+    for cols, limit, what in ((slice(1, 4), MAX_GYR_RADPS, "rad/s"), (slice(4, 7), MAX_ACC_MPS2, "m/s^2")):
+        block = data[:, cols]
+        bad = np.isinf(block) | (np.abs(np.nan_to_num(block)) > limit)
+        if bad.any():
+            r, c = (int(x) for x in np.argwhere(bad)[0])
+            col = COLUMNS[cols.start + c]
+            raise UserError(
+                f"{p}: line {lines[r + 1][0]}, column {col}: {float(block[r, c])!r} is beyond +-{limit:g} {what} "
+                f"(a sensor's range is far less; is the column in {what}?)"
+            )
     if not np.isfinite(data[:, 4:7]).all(axis=1).any():
         raise UserError(f"{p}: no row has a complete accelerometer sample (acc_x, acc_y, acc_z)")
     if not np.isfinite(data[:, 1:4]).all(axis=1).any():

@@ -56,7 +56,16 @@ def test_roundtrip(tmp_path: Path, capsys):
         ("".join(_rows(5)), "header lacks column(s) t_s"),
         ("t_s,gyr_x,gyr_y,gyr_z,acc_x,acc_y\n" + "1,0,0,0,0,0\n" * 3, "lacks column(s) acc_z"),
         (HEADER + "".join(_rows(3)) + "1000.04,0,0,zero,0,0,9.8\n", "line 5, column gyr_z: 'zero' is not a number"),
-        (HEADER + "".join(_rows(3)[::-1]), "line 3, column t_s: time goes backwards"),
+        (HEADER + "".join(_rows(3)[::-1]), "line 3, column t_s: time goes backwards (1000.01 s after 1000.02 s)"),
+        (
+            HEADER + "".join(_rows(3)) + "1000.04,1e300,0,0,0,0,9.8\n",
+            "line 5, column gyr_x: 1e+300 is beyond +-1000 rad/s",
+        ),
+        (HEADER + "".join(_rows(3)) + "1000.04,0,-inf,0,0,0,9.8\n", "line 5, column gyr_y: -inf is beyond"),
+        (
+            HEADER + "".join(_rows(3)) + "1000.04,0,0,0,0,0,1e9\n",
+            "line 5, column acc_z: 1000000000.0 is beyond +-5000 m/s^2",
+        ),
         (HEADER + "".join(_rows(2)) + ",0,0,0,0,0,9.8\n", "line 4, column t_s: time missing"),
         (HEADER + "".join(_rows(2)) + "1000.05,0,0\n", "line 4: 3 fields"),
         (HEADER + "1000,0,0,0,,,\n1001,0,0,0,,,\n", "no row has a complete accelerometer sample"),
