@@ -27,6 +27,7 @@ from services.fusion.evaluation import (
     CONTINUOUS_PROTOCOLS,
     COVERAGE_WARN,
     EvaluationError,
+    block_windows,
     coverage_note,
     evaluate,
     plot,
@@ -88,6 +89,28 @@ def _plots_dir(arg: str | None) -> Path | None:
     return plots
 
 
+def _planned_plots(session: Path, proto: str, args: argparse.Namespace) -> list[str]:
+    """Names of the PNG files this run will write into --plots, known before any work: one per
+    continuous block (with --estimate) and ablations.png (with --ablations), or the boxplots of
+    the kinds of trial a translation / rotation session holds."""
+    trials = json.loads(read_metadata(session).get("trials", {}).get("json", "[]") or "[]")
+    if proto in STATIC_PROTOCOLS:
+        kinds = {str(t.get("kind")) for t in trials if isinstance(t, dict)}
+        return [f"{k}_boxplots.png" for k in STATIC_PROTOCOLS if k in kinds]
+    if proto not in CONTINUOUS_PROTOCOLS:
+        return []
+    names = [f"{name}.png" for name, _, _ in block_windows(trials)] if args.estimate else []
+    return names + (["ablations.png"] if args.ablations else [])
+
+
+def _check_plots(plots: Path | None, names: list[str], force: bool) -> None:
+    """Refuse, before any work, a plot that would replace an existing file without --force."""
+    if plots is None or not plots.is_dir():
+        return
+    for name in dict.fromkeys(names):
+        output_file(plots / name, force)
+
+
 def _calibration(arg: str | None) -> Calibration | None:
     if not arg:
         return None
@@ -129,6 +152,10 @@ def run(args: argparse.Namespace) -> int:
     plots = _plots_dir(args.plots)
     jobs = _jobs(args.jobs)
     proto = protocol_of(session)
+    try:
+        _check_plots(plots, _planned_plots(session, proto, args), args.force)
+    except (ValueError, TypeError, KeyError):  # unreadable trials: named by the evaluation below
+        pass
     if proto in STATIC_PROTOCOLS or proto == "static":
         if args.estimate or args.ablations:
             raise UserError(f"--estimate/--ablations: not for a {proto} session (its filter is run here)")
@@ -158,11 +185,11 @@ def run(args: argparse.Namespace) -> int:
     _write(args.json_out, res, args.force)
     if plots is not None:
         plots.mkdir(exist_ok=True)
-        files = plot(res, plots) if "_series" in res else []
+        files = plot(res, plots, force=args.force) if "_series" in res else []
         if args.ablations:
             from services.fusion.evaluate_plots import ablation_bars
 
-            files.append(ablation_bars({session.stem: res}, plots))
+            files.append(ablation_bars({session.stem: res}, plots, force=args.force))
         for f in files:
             log.info("wrote %s", f)
     return 0
@@ -205,6 +232,6 @@ def _run_static(session: Path, proto: str, cal: Calibration | None, plots: Path 
         from services.fusion.evaluate_plots import protocol_boxplots
 
         plots.mkdir(exist_ok=True)
-        for f in protocol_boxplots(res, plots):
+        for f in protocol_boxplots(res, plots, force=args.force):
             log.info("wrote %s", f)
     return 0

@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from tiplog.userio import atomic_output
+
 
 def pyplot():
     """matplotlib.pyplot on the Agg backend (files only, no display)."""
@@ -21,11 +23,15 @@ def pyplot():
     return plt
 
 
-def save(fig, path: Path) -> Path:
-    """Lay the figure out, write it as PNG and free it."""
+def save(fig, path: Path, force: bool = True) -> Path:
+    """Lay the figure out, write it as PNG (under a temporary name, renamed when complete; an
+    existing file only replaced with `force`) and free it."""
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    pyplot().close(fig)
+    try:
+        with atomic_output(path, force) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        pyplot().close(fig)
     return path
 
 
@@ -34,7 +40,7 @@ def _box(ax, data: list[np.ndarray], labels: list[str]) -> None:
     ax.set_xticks(range(1, len(labels) + 1), labels)
 
 
-def protocol_boxplots(res: dict[str, Any], folder: Path, prefix: str = "") -> list[Path]:
+def protocol_boxplots(res: dict[str, Any], folder: Path, prefix: str = "", force: bool = True) -> list[Path]:
     """From `evaluate_static`'s result (with its private `_errors`): translation error per
     step and per axis; rotation relative-rotation and angle error per axis. Returns the files."""
     plt = pyplot()
@@ -55,7 +61,7 @@ def protocol_boxplots(res: dict[str, Any], folder: Path, prefix: str = "") -> li
         _box(a2, [err["tip_mm"][axes == a] for a in names], names)
         a2.set_xlabel("axis (camera frame)")
         a2.set_ylabel("displacement error [mm]")
-        out.append(save(fig, folder / f"{prefix}translation_boxplots.png"))
+        out.append(save(fig, folder / f"{prefix}translation_boxplots.png", force))
     if "rotation" in res:
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
         _box(a1, [err["relrot_deg"][axes == a] for a in names], names)
@@ -64,11 +70,13 @@ def protocol_boxplots(res: dict[str, Any], folder: Path, prefix: str = "") -> li
         _box(a2, [np.abs(err["angle_deg"][axes == a]) for a in names], names)
         a2.set_ylabel("|rotation-angle error| [deg]")
         a2.set_title(f"angle RMSE {res['rotation']['angle_rmse_deg']:.3f} deg")
-        out.append(save(fig, folder / f"{prefix}rotation_boxplots.png"))
+        out.append(save(fig, folder / f"{prefix}rotation_boxplots.png", force))
     return out
 
 
-def ablation_bars(tables: dict[str, dict[str, Any]], folder: Path, name: str = "ablations.png") -> Path:
+def ablation_bars(
+    tables: dict[str, dict[str, Any]], folder: Path, name: str = "ablations.png", force: bool = True
+) -> Path:
     """Bar chart of pooled tip RMSE per variant, one group of bars per session.
     `tables`: session label -> `ablation.ablation_table` result."""
     plt = pyplot()
@@ -89,4 +97,4 @@ def ablation_bars(tables: dict[str, dict[str, Any]], folder: Path, name: str = "
     ax.set_yscale("log")
     ax.legend()
     ax.set_title("sensor subsets and degraded vision")
-    return save(fig, folder / name)
+    return save(fig, folder / name, force)

@@ -182,9 +182,9 @@ def evaluate(session: str | Path, estimate: str | Path, topic: str = "fusion/sta
     return scorer(truth, est)
 
 
-def plot(result: dict[str, Any], folder: Path) -> list[Path]:
+def plot(result: dict[str, Any], folder: Path, force: bool = True) -> list[Path]:
     """Per block: tip path (truth and estimate, the two base axes of largest spread) and the
-    error over time, as PNG files in `folder`."""
+    error over time, as PNG files in `folder` (an existing one replaced only with `force`)."""
     from services.fusion.evaluate_plots import pyplot, save
 
     plt = pyplot()
@@ -205,7 +205,7 @@ def plot(result: dict[str, Any], folder: Path) -> list[Path]:
         a2.set_xlabel("time in scored window [s]")
         a2.set_ylabel("tip error [mm]")
         a2.set_title(f"RMSE {np.sqrt(np.mean(e**2)) * 1e3:.2f} mm")
-        out.append(save(fig, folder / f"{name}.png"))
+        out.append(save(fig, folder / f"{name}.png", force))
     return out
 
 
