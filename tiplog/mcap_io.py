@@ -5,18 +5,23 @@ registered lazily on the first message of a topic; a later message of another ty
 same topic is an error. Offline sessions from the bench, recordings from the recorder and
 offline fusion runs are all written through `McapWriter`, so any of them opens in Foxglove
 and in other MCAP readers.
+
+Every read goes through `open_reader` (each chunk's CRC checked as it is decompressed) inside
+`reading(path)`, which turns a failure that a damaged file explains into one `UserError` line
+saying where the file is damaged and that `tiplog record recover` salvages it.
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from google.protobuf.message import Message
-from mcap.reader import make_reader
+from google.protobuf.message import DecodeError, Message
+from mcap.reader import McapReader, make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType
 from mcap.writer import Writer as _Writer
@@ -24,6 +29,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from tiplog import __version__, topics
+from tiplog.userio import UserError, damage_note
 
 PROFILE = ""  # protobuf-encoded channels; no ROS profile
 LIBRARY = f"tiplog/{__version__}"
@@ -154,37 +160,77 @@ def _decoder_for(schema_name: str, schema_data: bytes, cache: dict, factory: Dec
     return dec
 
 
+def open_reader(stream: IO[bytes]) -> McapReader:
+    """The MCAP reader every part uses: it checks each chunk's CRC as it decompresses it (one
+    crc32 over the decompressed bytes), so a damaged chunk is an error, never silently wrong
+    messages."""
+    return make_reader(stream, validate_crcs=True)
+
+
+@contextmanager
+def reading(path: str | Path | None) -> Iterator[None]:
+    """Around code that reads the MCAP file `path`: an exception that a damaged file explains
+    (a pass over it finds a damaged record or end) becomes a UserError saying where, and that
+    `tiplog record recover` salvages it; any other exception goes on unchanged."""
+    try:
+        yield
+    except UserError:
+        raise
+    except Exception:
+        note = damage_note(path) if path is not None else None
+        if note is None:
+            raise
+        raise UserError(note) from None
+
+
 def read_messages(path: str | Path | IO[bytes], topics_: Iterable[str] | None = None) -> Iterator[Record]:
-    """Decoded messages in log-time order (all topics, or only `topics_`)."""
+    """Decoded messages in log-time order (all topics, or only `topics_`). A damaged file, or a
+    message that does not decode as its schema, is a UserError naming the file."""
     own = isinstance(path, (str, Path))
     stream = open(path, "rb") if own else path  # noqa: SIM115
+    name = path if own else getattr(stream, "name", None)
     try:
-        reader = make_reader(stream)
-        cache: dict[str, Any] = {}
-        factory = DecoderFactory()
-        wanted = list(topics_) if topics_ is not None else None
-        for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
-            dec = _decoder_for(schema.name, schema.data, cache, factory, schema)
-            yield Record(channel.topic, dec(message.data), message.log_time, message.publish_time, message.sequence)
+        with reading(name if isinstance(name, (str, Path)) else None):
+            reader = open_reader(stream)
+            cache: dict[str, Any] = {}
+            factory = DecoderFactory()
+            wanted = list(topics_) if topics_ is not None else None
+            for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+                dec = _decoder_for(schema.name, schema.data, cache, factory, schema)
+                try:
+                    decoded = dec(message.data)
+                except DecodeError:
+                    raise UserError(
+                        f"{name}: a {channel.topic} message (log time {message.log_time} ns) does not decode as "
+                        f"{schema.name}: the file is damaged or was written with another schema"
+                    ) from None
+                yield Record(channel.topic, decoded, message.log_time, message.publish_time, message.sequence)
     finally:
         if own:
             stream.close()
 
 
+def raw_messages(path: str | Path, topics_: Iterable[str] | None = None) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) undecoded, in log-time order; a damaged file is a UserError."""
+    with open(path, "rb") as f, reading(path):
+        wanted = list(topics_) if topics_ is not None else None
+        yield from open_reader(f).iter_messages(topics=wanted, log_time_order=True)
+
+
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """All metadata records by name (a later record of the same name wins)."""
-    with open(path, "rb") as f:
-        reader = make_reader(f)
+    with open(path, "rb") as f, reading(path):
+        reader = open_reader(f)
         return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
 
 
 def read_attachments(path: str | Path) -> dict[str, bytes]:
-    with open(path, "rb") as f:
-        reader = make_reader(f)
+    with open(path, "rb") as f, reading(path):
+        reader = open_reader(f)
         return {a.name: a.data for a in reader.iter_attachments()}
 
 
 def read_summary(path: str | Path) -> Any:
     """The file's summary (statistics, channels, schemas), or None for an unindexed file."""
-    with open(path, "rb") as f:
-        return make_reader(f).get_summary()
+    with open(path, "rb") as f, reading(path):
+        return open_reader(f).get_summary()

@@ -6,6 +6,8 @@ a valid indexed file; `tiplog info` and `tiplog replay` use them directly.
 
 from __future__ import annotations
 
+import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +18,8 @@ from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 MAGIC = b"\x89MCAP0\r\n"
+FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary_start, summary_offset_start, summary_crc
+FOOTER_OPCODE = 0x02
 
 
 class _Counting:
@@ -102,3 +106,35 @@ def scan(path: str | Path) -> tuple[Salvage, int]:
     with open(p, "rb") as f:
         n = sum(1 for _ in intact_messages(f, state))
     return state, n
+
+
+def trailer_problem(path: str | Path) -> str:
+    """What is wrong with the end of the file, in a few words, or "" when it ends with a footer
+    and the magic and the summary section matches the footer's CRC (when the writer set one).
+    Reads only the footer and the summary, which the indexed readers trust for every offset."""
+    p = Path(path)
+    if not ends_in_order(p):
+        return "no MCAP footer at the end of the file (bytes appended after it, or its end cut off)"
+    size = p.stat().st_size
+    footer_at = size - len(MAGIC) - FOOTER.size
+    if footer_at < len(MAGIC):
+        return "no footer record before the closing magic"
+    with open(p, "rb") as f:
+        f.seek(footer_at)
+        opcode, length, start, offset_start, crc = FOOTER.unpack(f.read(FOOTER.size))
+        if opcode != FOOTER_OPCODE or length != FOOTER.size - 9:
+            return "no footer record before the closing magic"
+        if start > footer_at or offset_start > footer_at or 0 < start < len(MAGIC):
+            return "its footer points outside the file"
+        if crc == 0:
+            return ""
+        begin = start or footer_at  # the CRC runs from the summary through the footer's offsets
+        f.seek(begin)
+        left, h = size - len(MAGIC) - 4 - begin, 0
+        while left > 0:
+            block = f.read(min(left, 1 << 20))
+            if not block:
+                break
+            h = zlib.crc32(block, h)
+            left -= len(block)
+    return "" if h == crc else "its summary (the index after the data) fails its CRC check"

@@ -4,7 +4,9 @@ any work starts; outputs are never overwritten without `--force` and are written
 temporary name in the same folder, renamed only when complete, so an interrupted command never
 leaves a half-written file under the final name. Every input checked here is remembered for the
 command, and an output that is the same file as one of them is refused, `--force` or not: the
-command would replace what it reads."""
+command would replace what it reads. An MCAP file whose end is damaged is refused up front, and
+a read that a damaged file explains is one line saying where (`damage_note`, through
+`tiplog.mcap_io.reading`), with the command that salvages it."""
 
 from __future__ import annotations
 
@@ -77,10 +79,15 @@ def input_mcap(path: str | os.PathLike, allow_truncated: bool = False) -> Path:
         raise UserError(f"{p}: cannot read ({e.strerror or e})") from None
     if head != MCAP_MAGIC:
         raise UserError(f"{p}: not an MCAP file")
-    if not allow_truncated and not mcap_salvage.ends_in_order(p):
+    if allow_truncated:
+        return p
+    if not mcap_salvage.ends_in_order(p):
         state, n = mcap_salvage.scan(p)
         if not state.complete:
             raise UserError(truncation_note(p, state, n))
+    problem = mcap_salvage.trailer_problem(p)  # cheap: the footer and the summary's CRC
+    if problem:
+        raise UserError(trailer_note(p, problem))
     return p
 
 
@@ -90,6 +97,34 @@ def truncation_note(path: Path, state: mcap_salvage.Salvage, messages: int, used
         f"{path}: cut short at byte {state.good_bytes} of {state.source_bytes} "
         f"({messages} messages {used} before it); run `tiplog record recover {path}` for a complete file"
     )
+
+
+def trailer_note(path: Path, problem: str) -> str:
+    """One line: the data is whole but what follows it is not; how to rebuild the file."""
+    return f"{path}: {problem}; run `tiplog record recover {path}` for a repaired file"
+
+
+def damage_note(path: str | os.PathLike) -> str | None:
+    """One line for an MCAP file its reader failed on: where it is damaged (the first record
+    that is cut off or fails its CRC, or the end of the file) and how to salvage it; None when
+    a pass over the file finds no damage (the failure is then not the file's)."""
+    p = Path(path)
+    try:
+        state, n = mcap_salvage.scan(p)
+        problem = "" if not state.complete else mcap_salvage.trailer_problem(p)
+    except OSError:
+        return None
+    if not state.complete:
+        kind = state.error.split(":", 1)[0]
+        if kind == "CRCValidationError":
+            what = "a chunk fails its CRC check"
+        else:
+            what = f"an unreadable record ({kind})" if kind else "the data section ends early"
+        return (
+            f"{p}: damaged at byte {state.good_bytes} of {state.source_bytes} ({what}; {n} messages before it); "
+            f"run `tiplog record recover {p}` to salvage the part before it"
+        )
+    return trailer_note(p, problem) if problem else None
 
 
 def output_file(path: str | os.PathLike, force: bool = False) -> Path:

@@ -72,6 +72,8 @@ def load(path: str | Path, prior_file: str | Path | None = None) -> CalibrationD
     p = input_mcap(path)
     try:
         meta = read_metadata(p)
+    except UserError:
+        raise
     except Exception as e:  # noqa: BLE001 - any reader failure is a bad file for the user
         raise UserError(f"{p}: cannot read the MCAP metadata ({e})") from None
     prior: Calibration | None = None
@@ -127,6 +129,8 @@ def load(path: str | Path, prior_file: str | Path | None = None) -> CalibrationD
                 vis["axis_point_m"].append(_v(m.axis_point_m))
                 vis["junction_ray"].append(_v(m.junction_ray))
                 vis["junction_visible"].append(m.junction_visible)
+    except UserError:
+        raise
     except Exception as e:  # noqa: BLE001
         raise UserError(f"{p}: cannot read the recording ({e})") from None
 

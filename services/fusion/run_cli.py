@@ -14,14 +14,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mcap.reader import make_reader
-
 from services.fusion.messages import to_fusion_state
 from services.fusion.params import Params, ParamsError, mode_name, parse_sensors
 from services.fusion.runner import FusionRunner
 from tiplog import topics
 from tiplog.calibration import Calibration, CalibrationError
-from tiplog.mcap_io import McapWriter, read_metadata
+from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 log = logging.getLogger("tiplog.fusion")
@@ -69,6 +67,8 @@ def load_inputs(args: argparse.Namespace) -> tuple[Path, Calibration, Params, fr
 def _metadata(src: Path) -> dict[str, dict[str, str]]:
     try:
         return read_metadata(src)
+    except UserError:
+        raise
     except Exception as e:  # noqa: BLE001 - any reader failure is a bad file for the user
         raise UserError(f"{src}: cannot read the MCAP metadata ({type(e).__name__})") from None
 
@@ -77,8 +77,9 @@ def check_streams(src: Path, sensors: frozenset[str], announced: dict[str, float
     """IMU topics present, each used stream near its nominal rate (from the file's summary):
     the rate the device announced where `announced` names it, else the paper's module's."""
     try:
-        with open(src, "rb") as f:
-            summary = make_reader(f).get_summary()
+        summary = read_summary(src)
+    except UserError:
+        raise
     except Exception as e:  # noqa: BLE001
         raise UserError(f"{src}: cannot read the MCAP summary ({type(e).__name__})") from None
     if summary is None or summary.statistics is None:
@@ -124,24 +125,22 @@ def announced_rates(meta: dict[str, dict[str, str]]) -> dict[str, float]:
 
 def iter_inputs(src: Path, stats: dict[str, int]):
     """(topic, message, log_time_ns) of the filter's input topics in log-time order; a message
-    that does not decode is counted in stats['corrupt'] and skipped."""
-    with open(src, "rb") as f:
-        reader = make_reader(f)
-        for _schema, channel, message in reader.iter_messages(topics=list(INPUT_TOPICS), log_time_order=True):
-            try:
-                cls = topics.message_type(channel.topic)
-                msg = cls.FromString(message.data)
-            except Exception:  # noqa: BLE001 - protobuf raises DecodeError and others
-                stats["corrupt"] = stats.get("corrupt", 0) + 1
-                continue
-            yield channel.topic, msg, message.log_time
+    that does not decode is counted in stats['corrupt'] and skipped (a damaged chunk, which
+    fails its CRC, is a UserError: nothing of it is fed to the filter)."""
+    for _schema, channel, message in raw_messages(src, INPUT_TOPICS):
+        try:
+            cls = topics.message_type(channel.topic)
+            msg = cls.FromString(message.data)
+        except Exception:  # noqa: BLE001 - protobuf raises DecodeError and others
+            stats["corrupt"] = stats.get("corrupt", 0) + 1
+            continue
+        yield channel.topic, msg, message.log_time
 
 
 def run_filter(src: Path, runner: FusionRunner, progress: bool = False) -> tuple[list, dict[str, int]]:
     """Feed the recording in arrival order and collect every published state (offline)."""
     stats: dict[str, int] = {}
-    with open(src, "rb") as f:
-        s = make_reader(f).get_summary()
+    s = read_summary(src)
     t0, t1 = s.statistics.message_start_time, s.statistics.message_end_time
     out = []
     next_report = 0.1

@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
+
+from tiplog.mcap_io import open_reader
 
 NS_PER_S = 1_000_000_000
 
@@ -67,7 +68,7 @@ def inspect(path: str | Path) -> dict[str, Any]:
     attachments: list[dict[str, Any]] = []
     indexed = True
     with open(path, "rb") as f:
-        reader = make_reader(f)
+        reader = open_reader(f)
         try:
             summary = reader.get_summary()
         except Exception:  # no footer: a truncated file
@@ -85,7 +86,7 @@ def inspect(path: str | Path) -> dict[str, Any]:
             metadata["_read_error"] = {"error": f"{type(e).__name__}: {e}"}
         if indexed:
             f.seek(0)
-            reader = make_reader(f)
+            reader = open_reader(f)
             for m in reader.iter_metadata():
                 metadata[m.name] = dict(m.metadata)
             for a in reader.iter_attachments():
@@ -115,7 +116,7 @@ def _messages(f, indexed: bool, metadata: dict, attachments: list):  # type: ign
     """(schema, channel, message) in file order: indexes when present, else a stream read
     (which also fills `metadata` and `attachments`)."""
     if indexed:
-        yield from make_reader(f).iter_messages(log_time_order=False)
+        yield from open_reader(f).iter_messages(log_time_order=False)
         return
     from mcap.records import Attachment, Channel, Message, Metadata, Schema
 

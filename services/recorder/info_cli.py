@@ -1,5 +1,6 @@
 """`tiplog info`: what a recording holds (duration, topics, types, rates, counts, gaps,
-metadata). A file cut short is shown as far as it can be read, and said so (exit status 2)."""
+metadata). A file cut short or damaged is shown as far as it can be read, and said so (exit
+status 2)."""
 
 from __future__ import annotations
 
@@ -17,16 +18,25 @@ def register(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from services.recorder.info import format_info, inspect
     from tiplog import mcap_salvage
-    from tiplog.userio import input_mcap, truncation_note
+    from tiplog.userio import damage_note, input_mcap, trailer_note, truncation_note
 
     path = input_mcap(args.recording, allow_truncated=True)
     info = inspect(path)
     print(json.dumps(info, indent=1) if args.json else format_info(info))
     if info["indexed"]:
-        return 0
-    state, n = mcap_salvage.scan(path)
-    if state.complete:  # a finished data section without a summary: nothing lost
-        return 0
+        error = info["metadata"].get("_read_error")
+        if error is None:
+            return 0
+        note = damage_note(path) or f"{path}: not all of it could be read ({error['error']})"
+    else:
+        state, n = mcap_salvage.scan(path)
+        if state.complete:  # a finished data section: nothing lost, but its end may be damaged
+            problem = mcap_salvage.trailer_problem(path)
+            if not problem:
+                return 0
+            note = trailer_note(path, problem)
+        else:
+            note = truncation_note(path, state, n, "shown")
     sys.stdout.flush()
-    print(f"tiplog info: {truncation_note(path, state, n, 'shown')}", file=sys.stderr)
+    print(f"tiplog info: {note}", file=sys.stderr)
     return 2

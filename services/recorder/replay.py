@@ -16,11 +16,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mcap.reader import make_reader
-
 from tiplog import topics
 from tiplog.bus import Bus, Publisher
-from tiplog.mcap_salvage import Salvage, ends_in_order, intact_messages
+from tiplog.mcap_io import open_reader, reading
+from tiplog.mcap_salvage import Salvage, intact_messages, trailer_problem
 
 log = logging.getLogger(__name__)
 NS_PER_S = 1_000_000_000
@@ -91,10 +90,10 @@ def replay(
     wanted = set(topics_) if topics_ else None
     rep = ReplayReport()
     pubs: dict[str, Publisher] = {}
-    with open(path, "rb") as f:
-        reader = make_reader(f)
+    with open(path, "rb") as f, reading(path):  # a damaged chunk ends the replay with where it is
+        reader = open_reader(f)
         try:
-            summary = reader.get_summary() if ends_in_order(path) else None
+            summary = None if trailer_problem(path) else reader.get_summary()
         except Exception:  # a damaged summary: read the data section as a stream
             summary = None
         if summary is not None:

@@ -14,7 +14,6 @@ from pathlib import Path
 
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf import any_pb2  # noqa: F401  (the recorder's _rejected/ channels are copied too)
-from mcap.reader import make_reader
 
 from services.vision.frames import FrameError, decode_frame
 from services.vision.network import load_checkpoint
@@ -22,7 +21,7 @@ from services.vision.overlap import ordered_map
 from services.vision.pipeline import Pipeline
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.camera_model import CameraModel
-from tiplog.mcap_io import McapWriter, read_metadata
+from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary
 from tiplog.userio import UserError
 from tiplog.v1 import vision_pb2
 
@@ -39,8 +38,7 @@ def _calibration(src: Path, calib_path: Path | None) -> Calibration:
 
 
 def _frame_count(src: Path) -> int:
-    with open(src, "rb") as f:
-        summary = make_reader(f).get_summary()
+    summary = read_summary(src)
     if summary is None or summary.statistics is None:
         return 0
     ids = [c.id for c in summary.channels.values() if c.topic == "camera/image"]
@@ -76,11 +74,11 @@ def run_file(
     counts = {"frames": 0, "accepted": 0, "rejected": 0}
     t0 = time.perf_counter()
 
-    def items(reader) -> Iterator[tuple]:
+    def items(messages) -> Iterator[tuple]:
         """("copy", schema, message) for what is copied, ("frame", k, message, camera) per frame."""
         camera: CameraModel | None = None
         k = 0
-        for schema, channel, message in reader.iter_messages(log_time_order=True):
+        for schema, channel, message in messages:
             topic = channel.topic
             if topic == "camera/image":
                 yield ("frame", k, message, camera)
@@ -104,10 +102,10 @@ def run_file(
         obs.processed_stamp_ns = stamp + int(round(obs.processing_ms * 1e6))
         return obs
 
-    with open(src, "rb") as f, McapWriter(out) as w:
+    with McapWriter(out) as w:
         for name, rec in read_metadata(src).items():
             w.add_metadata(name, rec)
-        for res in ordered_map(observe, items(make_reader(f)), workers, passthrough=lambda it: it[0] == "copy"):
+        for res in ordered_map(observe, items(raw_messages(src)), workers, passthrough=lambda it: it[0] == "copy"):
             if isinstance(res, tuple):
                 _, schema, channel, message = res
                 w.write_raw(channel.topic, schema.name, message.data, message.log_time, message.publish_time,

@@ -1,24 +1,29 @@
 """What the user has is never lost: no command's output replaces one of its own inputs (by any
-spelling, `--force` or not), nor a device or pipe. Every case: exit status 2, one line on
-stderr, the inputs byte-identical afterwards and no file left behind."""
+spelling, `--force` or not), nor a device or pipe; an MCAP file damaged in the middle or at its
+end is refused in one line saying where and that `tiplog record recover` salvages it, instead of
+being read silently or ending in a traceback. Every case: exit status 2, one line on stderr, the
+inputs byte-identical afterwards and no file left behind."""
 
 from __future__ import annotations
 
 import hashlib
 import os
 import stat
+import subprocess
+import sys
 
 import cv2
 import numpy as np
 import pytest
 
 from services.fusion.calibrate_hand_eye import write_pose_csv
+from tests.conftest import ROOT, free_port
 from tests.services.fusion.sessions import bench_session
 from tests.services.fusion.test_calibrate_hand_eye import _poses, _true_camera
 from tests.services.fusion.test_calibrate_intrinsics import _views
 from tiplog.calibration import Calibration
 from tiplog.cli import main
-from tiplog.mcap_io import read_metadata
+from tiplog.mcap_io import read_metadata, read_summary
 
 
 @pytest.fixture(scope="module")
@@ -119,3 +124,80 @@ def test_a_pipe_is_never_replaced_by_an_output(tmp_path, capsys):
         argv = ["sim", "generate", "--scenario", "sweeps", "--duration", "2", "--quiet", "--out", fifo, *force]
         one_line_exit_2(capsys, argv, f"{fifo}: not a regular file")
     assert stat.S_ISFIFO(fifo.lstat().st_mode) and [p.name for p in tmp_path.iterdir()] == ["fifo"]
+
+
+def damaged(src, dst, kind: str):
+    """A copy of `src` with the damage the field meets: 64 bytes inverted inside a chunk, junk
+    appended after the end, the last 4 bytes cut off."""
+    data = bytearray(src.read_bytes())
+    if kind == "flip":
+        c = read_summary(src).chunk_indexes[0]
+        mid = c.chunk_start_offset + c.chunk_length // 2
+        data[mid : mid + 64] = bytes(b ^ 0xFF for b in data[mid : mid + 64])
+    elif kind == "appended":
+        data += b"this is not MCAP " * 40
+    else:
+        data = data[:-4]
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+# (command line with {bad} for the damaged copy, the file it is a copy of)
+DAMAGED = [
+    ("fusion run {bad} --out {d}/o.mcap --quiet", "in.mcap"),
+    ("sim report {bad}", "in.mcap"),
+    ("evaluate {bad} --estimate {d}/est.mcap --json {d}/o.json", "in.mcap"),
+    ("evaluate {d}/in.mcap --estimate {bad} --json {d}/o.json", "est.mcap"),
+    ("calibrate block {bad} --out {d}/o.yaml", "in.mcap"),
+    ("info {bad}", "in.mcap"),
+]
+
+
+@pytest.mark.parametrize("kind", ["flip", "appended", "cut4"])
+@pytest.mark.parametrize("line,src", DAMAGED, ids=[f"{s.split(' {')[0]} {src}" for s, src in DAMAGED])
+def test_a_damaged_mcap_is_one_line_naming_where_and_the_way_out(files, capsys, line, src, kind):
+    bad = damaged(files / src, files / f"{kind}.mcap", kind)
+    before = snapshot(files)
+    argv = line.format(d=files, bad=bad).split()
+    rc = main(argv)
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2 and len(err) == 1 and "Traceback" not in err[0], err
+    assert f"{bad}: " in err[0] and f"`tiplog record recover {bad}`" in err[0], err[0]
+    if kind == "flip":
+        assert "damaged at byte" in err[0] and "CRC" in err[0], err[0]
+    assert snapshot(files) == before
+
+
+def test_vision_run_refuses_a_damaged_chunk(files, capsys):
+    bad = damaged(files / "in.mcap", files / "flip.mcap", "flip")
+    before = snapshot(files)
+    argv = ["vision", "run", bad, "--out", files / "o.mcap", "--quiet", "--threads", "1", "--workers", "1"]
+    one_line_exit_2(capsys, argv, f"{bad}: damaged at byte", "CRC", f"tiplog record recover {bad}")
+    assert snapshot(files) == before
+
+
+def test_replay_stops_at_a_damaged_chunk_with_exit_2(files):
+    bad = damaged(files / "in.mcap", files / "flip.mcap", "flip")
+    argv = ["replay", str(bad), "--max", "--wait", "0", "--mode", "peer", "-l", f"tcp/127.0.0.1:{free_port()}"]
+    r = subprocess.run(
+        [sys.executable, "-m", "tiplog.cli", *argv],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(err) == 1, r.stderr
+    assert f"{bad}: damaged at byte" in err[0] and f"tiplog record recover {bad}" in err[0], err[0]
+
+
+def test_record_recover_still_salvages_a_damaged_file(files, capsys):
+    for kind in ("flip", "appended"):
+        bad = damaged(files / "in.mcap", files / f"{kind}.mcap", kind)
+        out = files / f"{kind}.fixed.mcap"
+        assert main(["record", "recover", str(bad), "--out", str(out)]) == 0
+        assert main(["info", str(out)]) == 0
+    capsys.readouterr()
+    n = read_summary(files / "appended.fixed.mcap").statistics.message_count
+    assert n == read_summary(files / "in.mcap").statistics.message_count  # junk after the end: nothing lost

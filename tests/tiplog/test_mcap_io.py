@@ -5,7 +5,16 @@ import io
 import pytest
 from mcap.reader import make_reader
 
-from tiplog.mcap_io import McapWriter, read_attachments, read_messages, read_metadata, read_summary
+from tiplog.mcap_io import (
+    McapWriter,
+    raw_messages,
+    read_attachments,
+    read_messages,
+    read_metadata,
+    read_summary,
+    reading,
+)
+from tiplog.userio import UserError
 from tiplog.v1 import device_pb2
 
 
@@ -53,3 +62,52 @@ def test_raw_write_and_unknown_compression():
     assert channel.topic == "x/y" and schema.name == "tiplog.v1.Gyro"
     with pytest.raises(ValueError, match="compression"):
         McapWriter(io.BytesIO(), compression="gzip")
+
+
+def _chunked(path, compression="zstd"):
+    with McapWriter(path, compression=compression, chunk_size=2048) as w:
+        for k in range(300):
+            w.write("device/gyro", _gyro(k), log_time_ns=1000 * k, sequence=k)
+        w.add_metadata("session", {"scenario": "static"})
+    return path
+
+
+def _flip_a_chunk(src, dst):
+    """`src` with 64 bytes inverted in the middle of its middle chunk; returns that chunk's offset."""
+    data = bytearray(src.read_bytes())
+    chunks = read_summary(src).chunk_indexes
+    c = chunks[len(chunks) // 2]
+    mid = c.chunk_start_offset + c.chunk_length // 2
+    data[mid : mid + 64] = bytes(b ^ 0xFF for b in data[mid : mid + 64])
+    dst.write_bytes(bytes(data))
+    return c.chunk_start_offset
+
+
+@pytest.mark.parametrize("compression", ["zstd", "none"])
+def test_a_damaged_chunk_is_one_user_error_saying_where_never_wrong_messages(tmp_path, compression):
+    good = _chunked(tmp_path / "good.mcap", compression)
+    bad = tmp_path / "bad.mcap"
+    at = _flip_a_chunk(good, bad)
+    before = bad.read_bytes()
+    for read in (lambda: list(read_messages(bad)), lambda: list(raw_messages(bad, ["device/gyro"]))):
+        with pytest.raises(UserError) as e:
+            read()
+        msg = str(e.value)
+        assert msg.startswith(f"{bad}: damaged at byte {at} of {len(before)}"), msg
+        assert "CRC" in msg and f"tiplog record recover {bad}" in msg and "\n" not in msg
+    assert bad.read_bytes() == before
+    assert len(list(read_messages(good))) == 300  # an intact file reads as before
+
+
+def test_a_message_that_does_not_decode_is_one_user_error(tmp_path):
+    path = tmp_path / "odd.mcap"
+    with McapWriter(path) as w:  # chunk CRCs fine; the payload is not a Gyro
+        w.write_raw("device/gyro", "tiplog.v1.Gyro", b"\xff\xff\xff\xff", 5)
+    with pytest.raises(UserError, match=r"device/gyro message \(log time 5 ns\) does not decode as tiplog.v1.Gyro"):
+        list(read_messages(path))
+
+
+def test_reading_passes_on_what_the_file_does_not_explain(tmp_path):
+    good = _chunked(tmp_path / "good.mcap")
+    with pytest.raises(ZeroDivisionError), reading(good):
+        1 / 0  # noqa: B018 - a bug, not a damaged file: stays a bug

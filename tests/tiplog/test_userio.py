@@ -1,5 +1,6 @@
 """`tiplog.userio`: an output never replaces one of the command's inputs (by any spelling or
-link) nor a device, pipe or socket, `--force` or not."""
+link) nor a device, pipe or socket, `--force` or not; an MCAP file whose end is damaged is
+refused with where and how to repair it."""
 
 from __future__ import annotations
 
@@ -9,8 +10,18 @@ import stat
 
 import pytest
 
-from tiplog.mcap_io import McapWriter
-from tiplog.userio import UserError, atomic_output, forget_inputs, input_file, input_mcap, output_file, register_input
+from tiplog.mcap_io import McapWriter, read_summary
+from tiplog.mcap_salvage import FOOTER, MAGIC
+from tiplog.userio import (
+    UserError,
+    atomic_output,
+    damage_note,
+    forget_inputs,
+    input_file,
+    input_mcap,
+    output_file,
+    register_input,
+)
 from tiplog.v1 import device_pb2
 
 
@@ -93,3 +104,42 @@ def test_a_device_pipe_or_socket_is_never_replaced(tmp_path):
     finally:
         sock.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo", "s.sock"]
+
+
+@pytest.mark.parametrize("damage", ["appended", "last4cut", "summaryflip"])
+def test_mcap_with_a_damaged_end_is_refused_with_how_to_repair_it(tmp_path, damage):
+    good = _session(tmp_path / "good.mcap")
+    data = bytearray(good.read_bytes())
+    if damage == "appended":
+        data += b"GARBAGE " * 100
+    elif damage == "last4cut":
+        data = data[:-4]
+    else:
+        start = FOOTER.unpack(data[-len(MAGIC) - FOOTER.size : -len(MAGIC)])[2]
+        data[start + 20] ^= 0xFF
+    bad = tmp_path / f"{damage}.mcap"
+    bad.write_bytes(bytes(data))
+    assert input_mcap(good) == good
+    with pytest.raises(UserError) as e:
+        input_mcap(bad)
+    msg = str(e.value)
+    assert msg.startswith(f"{bad}: ") and f"tiplog record recover {bad}" in msg and "\n" not in msg
+    assert ("fails its CRC" in msg) == (damage == "summaryflip")
+    assert input_mcap(bad, allow_truncated=True) == bad  # record recover, info and replay read it as a stream
+
+
+def test_damage_note_says_where_a_chunk_fails_its_crc(tmp_path):
+    good = _session(tmp_path / "good.mcap")
+    assert damage_note(good) is None  # nothing wrong: a reader failure is not the file's
+    data = bytearray(good.read_bytes())
+    chunks = read_summary(good).chunk_indexes
+    assert len(chunks) > 2
+    c = chunks[len(chunks) // 2]
+    mid = c.chunk_start_offset + c.chunk_length // 2  # inside a chunk's compressed data
+    data[mid : mid + 64] = bytes(b ^ 0xFF for b in data[mid : mid + 64])
+    bad = tmp_path / "flip.mcap"
+    bad.write_bytes(bytes(data))
+    note = damage_note(bad)
+    assert note is not None and note.startswith(f"{bad}: damaged at byte ")
+    at = int(note.split("damaged at byte ")[1].split()[0])
+    assert at == c.chunk_start_offset and f"of {len(data)}" in note and f"tiplog record recover {bad}" in note
