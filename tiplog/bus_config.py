@@ -3,14 +3,51 @@ section every service shares (see tiplog.bus for the session itself)."""
 
 from __future__ import annotations
 
+import ipaddress
 import json
+import re
 from pathlib import Path
 from typing import Literal
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+PROTOCOLS = ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws")
+_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"  # with "_", as container names have
+_HOST_NAME = re.compile(rf"{_LABEL}(?:\.{_LABEL})*\.?")
+
+
+def endpoint_problem(endpoint: str, listening: bool = False) -> str | None:
+    """Why `endpoint` cannot be a Zenoh endpoint (PROTO/HOST:PORT, HOST a name, an IPv4
+    address or a bracketed IPv6 one; port 1-65535, or 0 to listen on any free one), or None.
+    Zenoh itself takes `tcp/999.1.1.1:1` and retries it for ever."""
+    form = f"endpoint {endpoint!r} is not of the form 'tcp/HOST:PORT'"
+    proto, slash, rest = endpoint.partition("/")
+    if not slash or proto not in PROTOCOLS:
+        return form
+    if proto == "unixsock-stream":
+        return None if rest else f"endpoint {endpoint!r}: no socket path"
+    addr = re.split(r"[?#]", rest, maxsplit=1)[0]  # zenoh's ?metadata and #configuration suffixes
+    host, colon, port = addr.rpartition(":")
+    if not colon or not host or not port.isdigit():
+        return form
+    lo = 0 if listening else 1
+    if not lo <= int(port) <= 65535:
+        return f"endpoint {endpoint!r}: port {int(port)} is not in {lo}-65535"
+    if host.startswith("[") and host.endswith("]"):
+        try:
+            ipaddress.IPv6Address(host[1:-1])
+        except ValueError:
+            return f"endpoint {endpoint!r}: {host} is not an IPv6 address"
+    elif re.fullmatch(r"[0-9.]+", host):
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            return f"endpoint {endpoint!r}: {host} is not an IPv4 address (four numbers 0-255)"
+    elif len(host) > 253 or not _HOST_NAME.fullmatch(host):
+        return f"endpoint {endpoint!r}: {host!r} is not a host name or address"
+    return None
 
 
 class BusConfig(BaseModel):
@@ -71,10 +108,11 @@ class BusConfig(BaseModel):
 
     @field_validator("connect", "listen")
     @classmethod
-    def _endpoints(cls, v: list[str]) -> list[str]:
+    def _endpoints(cls, v: list[str], info: ValidationInfo) -> list[str]:
         for e in v:
-            if "/" not in e or e.split("/", 1)[0] not in ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws"):
-                raise ValueError(f"endpoint {e!r} is not of the form 'tcp/HOST:PORT'")
+            why = endpoint_problem(e, listening=info.field_name == "listen")
+            if why:
+                raise ValueError(why)
         return v
 
     def zenoh_config(self) -> zenoh.Config:

@@ -55,3 +55,18 @@ def _range(lo: float | None, hi: float | None, lo_open: bool = False, unit: str 
     if hi is not None:
         parts.append(f"<= {hi:g}{u}")
     return " and ".join(parts)
+
+
+def endpoint(listening: bool = False) -> Callable[[str], str]:
+    """A Zenoh endpoint, PROTO/HOST:PORT (see tiplog.bus_config.endpoint_problem)."""
+
+    def parse(text: str) -> str:
+        from tiplog.bus_config import endpoint_problem
+
+        why = endpoint_problem(text, listening)
+        if why:
+            raise argparse.ArgumentTypeError(why)
+        return text
+
+    parse.__name__ = "endpoint"
+    return parse

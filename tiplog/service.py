@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
 from tiplog.bus import Bus
+from tiplog.cliargs import endpoint
 from tiplog.config import ConfigError, ServiceConfig, dump, load_config
 
 C = TypeVar("C", bound=ServiceConfig)
@@ -35,9 +36,17 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
         "--connect",
         action="append",
         metavar="ENDPOINT",
+        type=endpoint(listening=False),
         help="endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)",
     )
-    g.add_argument("-l", "--listen", action="append", metavar="ENDPOINT", help="endpoint to listen on (repeatable)")
+    g.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        type=endpoint(listening=True),
+        help="endpoint to listen on (repeatable)",
+    )
     g.add_argument("--prefix", help="key prefix (default tiplog/)")
 
 

@@ -26,6 +26,7 @@ import zenoh
 
 from tiplog.bus import Bus, BusConfig
 from tiplog.calibration import Calibration, CalibrationError
+from tiplog.cliargs import endpoint
 from tiplog.config import load_section
 from tiplog.supervisor import Child, Supervisor
 from tiplog.userio import UserError, input_file
@@ -36,7 +37,12 @@ DEFAULT_SERVICES = ["bench", "sensor_gateway", "vision", "fusion", "recorder", "
 
 
 def register(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="endpoint of the router this process holds")
+    p.add_argument(
+        "--listen",
+        default="tcp/127.0.0.1:7447",
+        type=endpoint(listening=True),
+        help="endpoint of the router this process holds",
+    )
     p.add_argument("--services", default=",".join(DEFAULT_SERVICES), help="comma list of services to start")
     p.add_argument("-c", "--config", help="YAML configuration passed to every service")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until interrupted)")

@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 
+from tiplog.cliargs import finite
 from tiplog.config import load_config
 from tiplog.service import add_bus_arguments, overrides_from_args
 
@@ -40,7 +41,12 @@ def register(p: argparse.ArgumentParser) -> None:
                 help="event label" if action == "mark" else "reason, recorded in the file",
             )
         a.add_argument("--json", action="store_true", help="print the reply as JSON")
-        a.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the reply")
+        a.add_argument(
+            "--timeout",
+            type=finite(0, 3600, lo_open=True),
+            default=10.0,
+            help="seconds to wait for the reply, up to 3600 (default 10)",
+        )
         a.set_defaults(func=_control, action=action, set=[])
     rc = sub.add_parser("recover", help="rebuild a valid indexed file from a truncated one")
     rc.add_argument("file", metavar="FILE", help="MCAP file cut short (a crash, a full disk)")

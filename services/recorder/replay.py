@@ -28,6 +28,9 @@ NS_PER_S = 1_000_000_000
 # preempted for milliseconds on a loaded host (measured: 1 ms of spin, 15% of puts >1 ms late
 # at load 4 on 2 cores; 0.1 ms, 1-4%).
 SPIN_NS = 100_000
+# Playback speed factors: a thousandth of real time stretches a minute over 17 hours; faster
+# than a thousand times, --max (as fast as possible) is what is meant.
+MIN_SPEED, MAX_SPEED = 0.001, 1000.0
 # Published by the live system itself: replaying them would confuse the running services.
 # `_rejected/` holds payloads the recorder kept out of their topics (admission.py): never
 # published again unless named.
@@ -47,28 +50,35 @@ class ReplayReport:
         return sum(self.messages_by_topic.values())
 
 
-def wait_until_ns(due_ns: int) -> int:
-    """Sleep, then spin, until time.monotonic_ns() >= due_ns; returns how late it woke (ns)."""
+def wait_until_ns(due_ns: int, stop: threading.Event | None = None) -> int:
+    """Sleep, then spin, until time.monotonic_ns() >= due_ns, or until `stop` is set; returns
+    how late it woke (ns; 0 when stopped)."""
     while True:
         now = time.monotonic_ns()
         left = due_ns - now
         if left <= 0:
             return -left
         if left > SPIN_NS:
-            time.sleep((left - SPIN_NS) / NS_PER_S)
+            if stop is None:
+                time.sleep((left - SPIN_NS) / NS_PER_S)
+            elif stop.wait((left - SPIN_NS) / NS_PER_S):
+                return 0
 
 
-def wait_for_subscribers(bus: Bus, topic_names: Iterable[str], timeout_s: float) -> bool:
-    """True once some subscriber matches one of the topics (the recorder, fusion, ...)."""
+def wait_for_subscribers(
+    bus: Bus, topic_names: Iterable[str], timeout_s: float, stop: threading.Event | None = None
+) -> bool:
+    """True once some subscriber matches one of the topics (the recorder, fusion, ...); False
+    after `timeout_s` or once `stop` is set."""
     probes = [bus.session.declare_publisher(bus.key(t)) for t in topic_names]
+    stop = stop or threading.Event()
     try:
         deadline = time.monotonic() + timeout_s
         while True:
             if any(p.matching_status.matching for p in probes):
                 return True
-            if time.monotonic() >= deadline:
+            if time.monotonic() >= deadline or stop.wait(0.01):
                 return False
-            time.sleep(0.01)
     finally:
         for p in probes:
             p.undeclare()
@@ -85,8 +95,8 @@ def replay(
     wait_s: float = 5.0,
 ) -> ReplayReport:
     """Publish the messages of `path` in log-time order; returns what was sent."""
-    if not as_fast_as_possible and not speed > 0:
-        raise ValueError(f"speed must be > 0 (got {speed})")
+    if not as_fast_as_possible and not MIN_SPEED <= speed <= MAX_SPEED:
+        raise ValueError(f"speed must be in [{MIN_SPEED:g}, {MAX_SPEED:g}] (got {speed})")
     wanted = set(topics_) if topics_ else None
     rep = ReplayReport()
     pubs: dict[str, Publisher] = {}
@@ -103,8 +113,9 @@ def replay(
                 if ch.topic in chosen:
                     sch = summary.schemas.get(ch.schema_id)
                     _publisher(bus, pubs, ch.topic, sch.name if sch else "", rep)
-            if wait_s > 0 and chosen and not wait_for_subscribers(bus, chosen, wait_s):
-                log.warning("no subscriber for %s after %.1f s; replaying anyway", ", ".join(chosen), wait_s)
+            if wait_s > 0 and chosen and not wait_for_subscribers(bus, chosen, wait_s, stop):
+                if not (stop is not None and stop.is_set()):
+                    log.warning("no subscriber for %s after %.1f s; replaying anyway", ", ".join(chosen), wait_s)
         first: int | None = None
         t0 = 0
         t_start = time.monotonic_ns()
@@ -129,7 +140,9 @@ def replay(
                 first = message.log_time
                 t0 = time.monotonic_ns() + 5_000_000  # a little lead for the first put
             if not as_fast_as_possible:
-                late = wait_until_ns(t0 + int((message.log_time - first) / speed))
+                late = wait_until_ns(t0 + int((message.log_time - first) / speed), stop)
+                if stop is not None and stop.is_set():
+                    break
                 rep.max_late_ns = max(rep.max_late_ns, late)
             pub.put_bytes(message.data)
             rep.messages_by_topic[topic] += 1

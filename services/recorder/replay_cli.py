@@ -7,7 +7,9 @@ import argparse
 import sys
 import threading
 
+from services.recorder.replay import MAX_SPEED, MIN_SPEED
 from tiplog.bus import BusConfig
+from tiplog.cliargs import finite
 from tiplog.config import load_config
 from tiplog.service import add_bus_arguments, overrides_from_args
 
@@ -15,10 +17,20 @@ from tiplog.service import add_bus_arguments, overrides_from_args
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", metavar="FILE", help="MCAP file")
     speed = p.add_mutually_exclusive_group()
-    speed.add_argument("--speed", type=float, default=1.0, help="playback speed factor")
+    speed.add_argument(
+        "--speed",
+        type=finite(MIN_SPEED, MAX_SPEED),
+        default=1.0,
+        help=f"playback speed factor, {MIN_SPEED:g} to {MAX_SPEED:g} (default 1)",
+    )
     speed.add_argument("--max", action="store_true", help="as fast as possible")
     p.add_argument("--topics", nargs="*", help="only these topics (default: all but recorder/*)")
-    p.add_argument("--wait", type=float, default=5.0, help="seconds to wait for a subscriber before starting")
+    p.add_argument(
+        "--wait",
+        type=finite(0, 3600),
+        default=5.0,
+        help="seconds to wait for a subscriber before starting, 0 to 3600 (default 5)",
+    )
     p.add_argument("-c", "--config", metavar="FILE", help="YAML configuration file (its bus section)")
     add_bus_arguments(p)
     p.set_defaults(func=_run, set=[])
@@ -44,14 +56,18 @@ def _run(args: argparse.Namespace) -> int:
         state, n = mcap_salvage.scan(path)
         if not state.complete and n == 0:  # nothing to replay: say so before joining the bus
             raise UserError(truncation_note(path, state, n))
-    if args.speed is not None and not args.max and args.speed <= 0:
-        raise UserError(f"--speed must be > 0 (got {args.speed})")
     # Standalone: with no router on this machine, the first tiplog process holds the endpoint
     # and the others (`tiplog record run` in another terminal) join it.
     config = load_config(_Cfg, "replay", args.config, [("bus.standalone", True), *overrides_from_args(args)])
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set, daemon=True).start())
-    with Bus(config.bus, service="replay") as bus:
+    try:
+        bus = Bus(config.bus, service="replay", stop=stop)  # SIGTERM ends the wait for a router too
+    except ConnectionError:
+        if stop.is_set():
+            return 143  # 128 + SIGTERM, as had it not been caught
+        raise
+    with bus:
         rep = replay(
             bus,
             path,

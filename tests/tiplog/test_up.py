@@ -51,3 +51,13 @@ def test_up_runs_every_service_and_the_bench_reaches_the_gateway(tmp_path):
     finally:
         if up.poll() is None:
             up.kill()
+
+
+@pytest.mark.parametrize("listen", ["garbage", "tcp/999.1.1.1:7447", "tcp/127.0.0.1:99999"])
+def test_a_bad_listen_endpoint_is_one_line_before_anything_starts(listen, capsys):
+    from tiplog.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["up", "--listen", listen, "--duration", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and len(err) == 1 and "--listen" in err[0] and listen in err[0], err

@@ -8,6 +8,8 @@ import signal
 import subprocess
 import sys
 
+import pytest
+
 from tests.conftest import ROOT
 from tests.services.recorder.conftest import StatusWatch
 from tiplog.bus import Bus
@@ -107,3 +109,13 @@ def test_record_run_foreground_stops_on_sigint(bus_pair_configs, tmp_path):
                 proc.kill()
     assert [r.message.range_raw_mm for r in read_messages(st.path, ["device/tof"])] == [float(k) for k in range(20)]
     assert read_summary(st.path) is not None  # finished with its summary on the way out
+
+
+def test_a_bad_timeout_is_refused_while_parsing(capsys):
+    from tiplog.cli import main
+
+    for value, needle in (("-1", "> 0"), ("nan", "finite"), ("0", "> 0")):
+        with pytest.raises(SystemExit) as e:
+            main(["record", "status", "--timeout", value])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1 and "--timeout" in err[0] and needle in err[0], err
