@@ -58,11 +58,14 @@ def _range(lo: float | None, hi: float | None, lo_open: bool = False, unit: str 
 
 
 def endpoint(listening: bool = False) -> Callable[[str], str]:
-    """A Zenoh endpoint, PROTO/HOST:PORT (see tiplog.bus_config.endpoint_problem)."""
+    """A Zenoh endpoint, PROTO/HOST:PORT (see tiplog.bus_config.endpoint_problem), or '' (the
+    documented `--listen ''`: none, for a client that only connects)."""
 
     def parse(text: str) -> str:
         from tiplog.bus_config import endpoint_problem
 
+        if text == "":
+            return text
         why = endpoint_problem(text, listening)
         if why:
             raise argparse.ArgumentTypeError(why)

@@ -36,3 +36,15 @@ def test_endpoint():
     assert endpoint(listening=True)("tcp/127.0.0.1:0") == "tcp/127.0.0.1:0"
     with pytest.raises(argparse.ArgumentTypeError, match="not an IPv4 address"):
         endpoint()("tcp/999.1.1.1:1")
+
+
+def test_an_empty_listen_endpoint_means_none():
+    """`--listen ''` (README, docs/deployment.md): a client that only connects listens nowhere."""
+    from tiplog.service import add_config_arguments, overrides_from_args
+
+    p = argparse.ArgumentParser()
+    add_config_arguments(p)
+    args = p.parse_args(["--mode", "client", "--connect", "tcp/127.0.0.1:7447", "--listen", ""])
+    assert ("bus.listen", []) in overrides_from_args(args)
+    with pytest.raises(SystemExit):
+        p.parse_args(["--listen", "tcp/"])
