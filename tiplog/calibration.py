@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from tiplog.userio import read_yaml
+
 FORMAT = "tiplog-calibration"
 VERSION = 1
 # Metadata record names in a session file, in order of preference for estimators.
@@ -249,16 +251,7 @@ class Calibration:
     @classmethod
     def load_yaml(cls, path: str | Path) -> Calibration:
         p = Path(path)
-        try:
-            doc = yaml.safe_load(p.read_text())
-        except OSError as e:
-            raise CalibrationError(f"{p}: cannot read ({e.strerror or e})") from None
-        except UnicodeDecodeError:
-            raise CalibrationError(f"{p}: not a tiplog calibration file (not text)") from None
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-            raise CalibrationError(f"{p}: not valid YAML{at}") from None
+        doc = read_yaml(p, CalibrationError, "not a tiplog calibration file (not text)")
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
             raise CalibrationError(f"{p}: not a tiplog calibration file (no 'format: {FORMAT}')")
         version = doc.get("version", 0)

@@ -20,6 +20,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from tiplog.bus import BusConfig
+from tiplog.userio import yaml_error_at
 
 T = TypeVar("T", bound=BaseModel)
 ENV_PREFIX = "TIPLOG_"
@@ -78,14 +79,6 @@ def format_validation_error(err: ValidationError, where: str = "") -> str:
         got_s = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
         lines.append(f"config error: {loc}: {msg}{got_s}")
     return "\n".join(lines)
-
-
-def yaml_error_at(e: yaml.YAMLError) -> str:
-    """' at line L, column C: problem' for a YAML syntax error (1-based, as editors count)."""
-    mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
-    problem = getattr(e, "problem", None) or e.__class__.__name__
-    at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-    return f"{at}: {problem}"
 
 
 def read_yaml_file(path: str | Path, what: str = "config") -> Any:

@@ -15,6 +15,9 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from tiplog import mcap_salvage
 
@@ -48,6 +51,28 @@ def _input_behind(p: Path) -> tuple[Path, str] | None:
         except OSError:  # either side gone or unreadable: not the same existing file
             continue
     return None
+
+
+def yaml_error_at(e: yaml.YAMLError) -> str:
+    """' at line L, column C: problem' for a YAML syntax error (1-based, as editors count)."""
+    mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+    problem = getattr(e, "problem", None) or e.__class__.__name__
+    at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    return f"{at}: {problem}"
+
+
+def read_yaml(path: str | os.PathLike, error: type[Exception], not_text: str) -> Any:
+    """The parsed YAML document of `path`, or `error` naming the file: unreadable, not text
+    (`not_text` says what was expected), or not YAML (with the line and column)."""
+    p = Path(path)
+    try:
+        return yaml.safe_load(p.read_text())
+    except OSError as e:
+        raise error(f"{p}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise error(f"{p}: {not_text}") from None
+    except yaml.YAMLError as e:
+        raise error(f"{p}: not valid YAML{yaml_error_at(e)}") from None
 
 
 def input_file(path: str | os.PathLike, what: str = "input file") -> Path:

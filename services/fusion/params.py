@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+
+from tiplog.userio import read_yaml
 
 SENSORS = frozenset({"imu", "tof", "vision"})
 _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
@@ -210,16 +211,7 @@ class Params:
     def load_yaml(cls, path: str | Path) -> Params:
         """A YAML mapping of parameter names (optionally under `fusion_params:`)."""
         p = Path(path)
-        try:
-            doc = yaml.safe_load(p.read_text())
-        except OSError as e:
-            raise ParamsError(f"{p}: cannot read ({e.strerror or e})") from None
-        except UnicodeDecodeError:
-            raise ParamsError(f"{p}: not a text/YAML file (a parameter file is YAML)") from None
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-            raise ParamsError(f"{p}: not valid YAML{at}") from None
+        doc = read_yaml(p, ParamsError, "not a text/YAML file (a parameter file is YAML)")
         if isinstance(doc, dict) and "fusion_params" in doc:
             doc = doc["fusion_params"]
         return cls.from_dict(doc or {}, where=str(p))
