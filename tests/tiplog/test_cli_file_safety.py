@@ -18,7 +18,7 @@ import pytest
 
 from services.fusion.calibrate_hand_eye import write_pose_csv
 from tests.conftest import ROOT, free_port
-from tests.services.fusion.sessions import bench_session
+from tests.services.fusion.sessions import bench_estimate, bench_session
 from tests.services.fusion.test_calibrate_hand_eye import _poses, _true_camera
 from tests.services.fusion.test_calibrate_intrinsics import _views
 from tiplog.calibration import Calibration
@@ -33,9 +33,7 @@ def session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def estimate(session, tmp_path_factory):
-    out = tmp_path_factory.mktemp("safety_est") / "est.mcap"
-    assert main(["fusion", "run", str(session), "--out", str(out), "--quiet"]) == 0
-    return out
+    return bench_estimate(tmp_path_factory, session)
 
 
 @pytest.fixture(scope="module")

@@ -23,6 +23,16 @@ def bench_session(tmp_path_factory, scenario: str = "teleop", seed: int = 11, du
     return _CACHE[key]
 
 
+def bench_estimate(tmp_path_factory, session: Path) -> Path:
+    """`tiplog fusion run` on `session` with the built-in parameters, once per test run (read only)."""
+    key = ("estimate", str(session))
+    if key not in _CACHE:
+        out = tmp_path_factory.mktemp(f"est_{session.stem}") / "est.mcap"
+        assert tiplog_main(["fusion", "run", str(session), "--out", str(out), "--quiet"]) == 0
+        _CACHE[key] = out
+    return _CACHE[key]
+
+
 def inputs(path: Path) -> list[tuple[str, Message, int]]:
     """(topic, message, arrival) of the filter's inputs in arrival order."""
     want = ("device/gyro", "device/accel", "device/tof", "vision/observation", "camera/info")

@@ -10,7 +10,7 @@ import pytest
 
 from services.fusion.evaluate_cli import _planned_plots
 from services.fusion.evaluate_plots import pyplot, save
-from tests.services.fusion.sessions import bench_session
+from tests.services.fusion.sessions import bench_estimate, bench_session
 from tiplog.cli import main as tiplog_main
 from tiplog.mcap_io import McapWriter
 
@@ -24,9 +24,7 @@ def session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def estimate(session, tmp_path_factory):
-    out = tmp_path_factory.mktemp("plots_est") / "est.mcap"
-    assert tiplog_main(["fusion", "run", str(session), "--out", str(out), "--quiet"]) == 0
-    return out
+    return bench_estimate(tmp_path_factory, session)
 
 
 def test_existing_plots_are_kept_without_force_and_replaced_with_it(tmp_path, session, estimate, capsys):

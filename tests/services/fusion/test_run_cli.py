@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from services.fusion.run_cli import announced_rates
-from tests.services.fusion.sessions import bench_session, rewrite
+from tests.services.fusion.sessions import bench_estimate, bench_session, rewrite
 from tiplog.calibration import Calibration
 from tiplog.cli import main as tiplog_main
 from tiplog.mcap_io import McapWriter, read_messages, read_metadata
@@ -26,9 +26,7 @@ def session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def estimate(session, tmp_path_factory):
-    out = tmp_path_factory.mktemp("est") / "est.mcap"
-    assert tiplog_main(["fusion", "run", str(session), "--out", str(out), "--quiet"]) == 0
-    return out
+    return bench_estimate(tmp_path_factory, session)
 
 
 def _fails(capsys, argv, *needles):
