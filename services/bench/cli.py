@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 from tiplog.cliargs import finite, whole
 
@@ -59,11 +60,13 @@ def _progress(quiet: bool):
 
 
 def _generate(args: argparse.Namespace) -> int:
-    from services.bench.scenario import load_scenario
+    from services.bench.scenario import BUILTIN, load_scenario
     from services.bench.session import generate
     from services.bench.simulation import shortest_duration
-    from tiplog.userio import UserError, atomic_output, output_file
+    from tiplog.userio import UserError, atomic_output, output_file, register_input
 
+    if args.scenario not in BUILTIN and Path(args.scenario).is_file():
+        register_input(args.scenario, "scenario file")  # never replaced by --out
     output_file(args.out, args.force)  # before any work: a bad --out costs nothing
     sc = load_scenario(args.scenario, args.overrides)  # ConfigError -> exit 2 with the field named
     duration = args.duration if args.duration is not None else sc.duration_s

@@ -115,6 +115,15 @@ def test_a_symlink_or_hard_link_to_an_input_is_the_input(files, capsys):
     assert snapshot(files) == before and (files / "link.mcap").is_symlink()
 
 
+def test_a_scenario_file_is_never_replaced_by_the_session(tmp_path, capsys):
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text("base: sweeps\nduration_s: 2\n")
+    before = scenario.read_bytes()
+    argv = ["sim", "generate", "--scenario", scenario, "--quiet", "--out", scenario, "--force"]
+    one_line_exit_2(capsys, argv, f"{scenario}: is also an input of this command (the scenario file)")
+    assert scenario.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["scenario.yaml"]
+
+
 def test_a_pipe_is_never_replaced_by_an_output(tmp_path, capsys):
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
