@@ -21,6 +21,7 @@ from tiplog.userio import read_yaml
 
 SENSORS = frozenset({"imu", "tof", "vision"})
 _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
+MAX_HISTORY_MS = 120_000.0  # the rewind history lives in memory: a snapshot per gyro sample
 
 
 class ParamsError(ValueError):
@@ -158,6 +159,8 @@ class Params:
         for name in ("tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", *_GATES):
             if not getattr(self, name) > 0:
                 raise ParamsError(f"fusion parameter {name}: must be > 0 (got {getattr(self, name)})")
+        if self.history_ms > MAX_HISTORY_MS:  # a snapshot per gyro sample is kept for that long
+            raise ParamsError(f"fusion parameter history_ms: at most {MAX_HISTORY_MS:g} (got {self.history_ms:g})")
         if self.max_age_ms > self.history_ms:
             raise ParamsError("fusion parameter max_age_ms: must not exceed history_ms")
         for lo, hi in (("tof_min_mm", "tof_max_mm"), ("depth_min_m", "depth_max_m")):

@@ -24,6 +24,7 @@ from tiplog.mcap_io import McapWriter
         ("tof_sigma_mm: -.inf", ("tof_sigma_mm", "finite")),
         ("tof_sigma_mm: .nan", ("tof_sigma_mm", "finite", "nan")),
         ("history_ms: .inf", ("history_ms", "finite")),
+        ("history_ms: 1e12", ("history_ms", "at most 120000")),
         ("tof_sigma_mm: true", ("tof_sigma_mm", "expected a number", "True")),
         ("tof_sigma_mm: abc", ("tof_sigma_mm", "expected a number", "'abc'")),
         ("tof_min_mm: 500", ("tof_min_mm", "tof_max_mm", "less than")),
