@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from tiplog.userio import read_yaml
+from tiplog.userio import read_yaml, yaml_number
 
 FORMAT = "tiplog-calibration"
 VERSION = 1
@@ -66,12 +66,7 @@ def _is_number(v: Any) -> bool:
 def _number(name: str, v: Any) -> float:
     """`v` as a finite float, or CalibrationError naming the field. A bool is not a number; a
     string that is one is (PyYAML reads `1e-5`, without a dot, as a string)."""
-    x: float | None = float(v) if _is_number(v) else None
-    if isinstance(v, str):
-        try:
-            x = float(v.strip())
-        except ValueError:
-            pass
+    x = yaml_number(v)
     if x is None:
         raise CalibrationError(f"calibration field {name}: expected a number (got {v!r})")
     if not np.isfinite(x):

@@ -10,6 +10,7 @@ a read that a damaged file explains is one line saying where (`damage_note`, thr
 
 from __future__ import annotations
 
+import numbers
 import os
 import tempfile
 from collections.abc import Iterator
@@ -59,6 +60,20 @@ def yaml_error_at(e: yaml.YAMLError) -> str:
     problem = getattr(e, "problem", None) or e.__class__.__name__
     at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
     return f"{at}: {problem}"
+
+
+def yaml_number(v: Any) -> float | None:
+    """A number read from YAML as a float, else None (a bool is not a number). PyYAML reads
+    `1e-5` and `2e3` (no dot, or no exponent sign) as strings, so a string that is a number
+    counts."""
+    if isinstance(v, numbers.Real) and not isinstance(v, bool):
+        return float(v)
+    if isinstance(v, str):
+        try:
+            return float(v.strip())
+        except ValueError:
+            return None
+    return None
 
 
 def read_yaml(path: str | os.PathLike, error: type[Exception], not_text: str) -> Any:

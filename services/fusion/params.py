@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from tiplog.userio import read_yaml
+from tiplog.userio import read_yaml, yaml_number
 
 SENSORS = frozenset({"imu", "tof", "vision"})
 _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
@@ -26,21 +26,6 @@ MAX_HISTORY_MS = 120_000.0  # the rewind history lives in memory: a snapshot per
 
 class ParamsError(ValueError):
     """A parameter file or value that cannot be used; the message names the field."""
-
-
-def _yaml_number(v: Any) -> float | None:
-    """A number from YAML as float, else None (a bool is not a number). PyYAML reads `1e-5`
-    and `2e3` (no dot, or no exponent sign) as strings, so a string that is a number counts."""
-    if isinstance(v, bool):
-        return None
-    if isinstance(v, int | float):
-        return float(v)
-    if isinstance(v, str):
-        try:
-            return float(v.strip())
-        except ValueError:
-            return None
-    return None
 
 
 @dataclass(frozen=True)
@@ -196,7 +181,7 @@ class Params:
                     raise ParamsError(f"{where}: parameter {k}: expected true or false (got {v!r})")
                 out[k] = v
             else:
-                x = _yaml_number(v)
+                x = yaml_number(v)
                 if x is None:
                     raise ParamsError(f"{where}: parameter {k}: expected a number (got {v!r})")
                 if isinstance(default, int):
