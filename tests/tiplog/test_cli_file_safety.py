@@ -18,22 +18,12 @@ import pytest
 
 from services.fusion.calibrate_hand_eye import write_pose_csv
 from tests.conftest import ROOT, free_port
-from tests.services.fusion.sessions import bench_estimate, bench_session
+from tests.services.fusion.sessions import sweeps_estimate_fixture, sweeps_session_fixture  # noqa: F401 (fixtures session, estimate)
 from tests.services.fusion.test_calibrate_hand_eye import _poses, _true_camera
 from tests.services.fusion.test_calibrate_intrinsics import _views
 from tiplog.calibration import Calibration
 from tiplog.cli import main
 from tiplog.mcap_io import read_metadata, read_summary
-
-
-@pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    return bench_session(tmp_path_factory, "sweeps", seed=12, duration_s=6.0)
-
-
-@pytest.fixture(scope="module")
-def estimate(session, tmp_path_factory):
-    return bench_estimate(tmp_path_factory, session)
 
 
 @pytest.fixture(scope="module")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from google.protobuf.message import Message
 
 from tiplog.cli import main as tiplog_main
@@ -48,3 +49,15 @@ def rewrite(src: Path, dst: Path, keep_topic, keep_metadata) -> None:
         for r in read_messages(src):
             if keep_topic(r.topic):
                 w.write(r.topic, r.message, r.log_time_ns, r.publish_time_ns, r.sequence)
+
+
+# A 6 s sweeps session and its estimate with the built-in parameters, as the fixtures `session`
+# and `estimate` (read only) of the modules that import these two functions.
+@pytest.fixture(scope="module", name="session")
+def sweeps_session_fixture(tmp_path_factory) -> Path:
+    return bench_session(tmp_path_factory, "sweeps", seed=12, duration_s=6.0)
+
+
+@pytest.fixture(scope="module", name="estimate")
+def sweeps_estimate_fixture(session, tmp_path_factory) -> Path:
+    return bench_estimate(tmp_path_factory, session)

@@ -10,21 +10,11 @@ import pytest
 
 from services.fusion.evaluate_cli import _planned_plots
 from services.fusion.evaluate_plots import pyplot, save
-from tests.services.fusion.sessions import bench_estimate, bench_session
+from tests.services.fusion.sessions import sweeps_estimate_fixture, sweeps_session_fixture  # noqa: F401 (fixtures session, estimate)
 from tiplog.cli import main as tiplog_main
 from tiplog.mcap_io import McapWriter
 
 PNG = b"\x89PNG\r\n\x1a\n"
-
-
-@pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    return bench_session(tmp_path_factory, "sweeps", seed=12, duration_s=6.0)
-
-
-@pytest.fixture(scope="module")
-def estimate(session, tmp_path_factory):
-    return bench_estimate(tmp_path_factory, session)
 
 
 def test_existing_plots_are_kept_without_force_and_replaced_with_it(tmp_path, session, estimate, capsys):

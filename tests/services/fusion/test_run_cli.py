@@ -11,22 +11,12 @@ import numpy as np
 import pytest
 
 from services.fusion.run_cli import announced_rates
-from tests.services.fusion.sessions import bench_estimate, bench_session, rewrite
+from tests.services.fusion.sessions import bench_session, rewrite, sweeps_estimate_fixture, sweeps_session_fixture  # noqa: F401 (fixtures session, estimate)
 from tiplog.calibration import Calibration
 from tiplog.cli import main as tiplog_main
 from tiplog.mcap_io import McapWriter, read_messages, read_metadata
 
 ESTIMATOR_META = {"calibration_as_calibrated"}
-
-
-@pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    return bench_session(tmp_path_factory, "sweeps", seed=12, duration_s=6.0)
-
-
-@pytest.fixture(scope="module")
-def estimate(session, tmp_path_factory):
-    return bench_estimate(tmp_path_factory, session)
 
 
 def _fails(capsys, argv, *needles):
