@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tiplog.userio import UserError, atomic_output, input_file
+from tiplog.userio import UserError, atomic_output, input_file, output_file
 
 COLUMNS = ("t_s", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")
 # Beyond any MEMS sensor's range (gyroscopes reach about 70 rad/s = 4000 deg/s, accelerometers
@@ -116,7 +116,6 @@ def write_csv(path: Path, t_s: np.ndarray, q_wxyz: np.ndarray) -> None:
 def run(args: argparse.Namespace) -> int:
     from services.fusion.attitude import Params, estimate
 
-    t_s, gyr, acc = read_csv(args.input)
     kw = {}
     if args.tau_acc is not None:
         kw["tau_acc_s"] = args.tau_acc
@@ -124,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
         params = Params(estimate_bias=not args.no_bias, **kw)
     except ValueError as e:
         raise UserError(str(e)) from None
+    # the input first, then OUTPUT, which must not be it: refused before the CSV is read
+    input_file(args.input, "CSV file")
+    output_file(args.output, args.force)
+    t_s, gyr, acc = read_csv(args.input)
     norm = np.linalg.norm(acc, axis=1)
     g_med = float(np.nanmedian(norm[norm > 0])) if np.any(norm > 0) else 0.0
     if g_med > 0 and not 5.0 <= g_med <= 15.0:

@@ -74,14 +74,17 @@ def write_pose_csv(path: str | Path, T_base_tool: np.ndarray, T_camera_marker: n
 
 
 def run(args: argparse.Namespace) -> int:
+    # the inputs first, then --out, which must not be one of them: refused before any work
+    poses = input_file(args.poses, "pose CSV file")
+    base_file = input_file(args.base, "calibration file") if args.base else None
     output_file(args.out, args.force)
     base = None
-    if args.base:
+    if base_file is not None:
         try:
-            base = Calibration.load_yaml(input_file(args.base, "calibration file"))
+            base = Calibration.load_yaml(base_file)
         except CalibrationError as e:
             raise UserError(str(e)) from None
-    B, C = read_pose_csv(args.poses)
+    B, C = read_pose_csv(poses)
     if args.heldout and len(B) - args.heldout < MIN_FIT_POSES:
         raise UserError(
             f"--heldout {args.heldout} leaves {max(len(B) - args.heldout, 0)} of the {len(B)} poses in "

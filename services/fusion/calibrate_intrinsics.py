@@ -46,37 +46,49 @@ def _gray_from_raw(m) -> np.ndarray:
     return cv2.cvtColor(a, cv2.COLOR_RGB2GRAY if m.encoding == "rgb8" else cv2.COLOR_BGR2GRAY)
 
 
-def iter_gray(source: str | Path, every: int = 1) -> Iterator[np.ndarray]:
-    """8-bit grey images from a folder of image files or an MCAP file's camera/image."""
+def image_source(source: str | Path, every: int = 1) -> list[Path] | Path:
+    """The image files a folder gives (sorted by name, every `every`-th) or the MCAP file, each
+    registered as an input (--out may not replace one); UserError when there is none."""
     p = Path(source)
+    if not p.exists():
+        raise UserError(f"{p}: no such folder or MCAP file")
     if p.is_dir():
         files = sorted(f for f in p.iterdir() if f.suffix.lower() in EXTS)
         if not files:
             raise UserError(f"{p}: no image files ({', '.join(EXTS)}) in the folder")
         for f in files[::every]:
-            register_input(f, "chessboard image")  # --out may not replace it
+            register_input(f, "chessboard image")
+        return files[::every]
+    return input_mcap(p)
+
+
+def iter_gray(source: str | Path, every: int = 1) -> Iterator[np.ndarray]:
+    """8-bit grey images from a folder of image files or an MCAP file's camera/image."""
+    src = image_source(source, every)
+    if isinstance(src, list):
+        for f in src:
             img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
             if img is None:
                 raise UserError(f"{f}: not a readable image")
             yield img
         return
-    path = input_mcap(p)
-    for k, rec in enumerate(read_messages(path, ["camera/image"])):
+    for k, rec in enumerate(read_messages(src, ["camera/image"])):
         if k % every == 0:
             yield _gray_from_raw(rec.message)
 
 
 def run(args: argparse.Namespace) -> int:
     cols, rows = _board(args.board)
+    # the inputs first, then --out, which must not be one of them: refused before any work
+    image_source(args.images, args.every)
+    base_file = input_file(args.base, "calibration file") if args.base else None
     output_file(args.out, args.force)
     base = None
-    if args.base:
+    if base_file is not None:
         try:
-            base = Calibration.load_yaml(input_file(args.base, "calibration file"))
+            base = Calibration.load_yaml(base_file)
         except CalibrationError as e:
             raise UserError(str(e)) from None
-    if not Path(args.images).exists():
-        raise UserError(f"{args.images}: no such folder or MCAP file")
     corners, size, seen = [], None, 0
     for gray in iter_gray(args.images, args.every):
         seen += 1

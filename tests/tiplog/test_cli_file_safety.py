@@ -198,3 +198,69 @@ def test_record_recover_still_salvages_a_damaged_file(files, capsys):
     capsys.readouterr()
     n = read_summary(files / "appended.fixed.mcap").statistics.message_count
     assert n == read_summary(files / "in.mcap").statistics.message_count  # junk after the end: nothing lost
+
+
+@pytest.fixture
+def small_files(tmp_path, board_views):
+    """The inputs of hand-eye, intrinsics and attitude without a bench session: a pose CSV, a
+    calibration file, chessboard images, an MCAP file of camera images and an IMU CSV."""
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+    from services.bench.scenario import load_scenario
+    from services.bench.simulation import as_calibrated_constants
+    from tiplog.mcap_io import McapWriter
+
+    d = tmp_path / "d"
+    (d / "board").mkdir(parents=True)
+    write_pose_csv(d / "poses.csv", *_poses(10, 30, _true_camera()))
+    Calibration.from_dict(as_calibrated_constants(load_scenario("static"), 1).to_dict()).save_yaml(d / "cal.yaml")
+    with McapWriter(d / "images.mcap") as w:
+        for k, img in enumerate(board_views):
+            cv2.imwrite(str(d / "board" / f"v{k:02d}.png"), img)
+            h, wd = img.shape
+            w.write("camera/image", RawImage(width=wd, height=h, encoding="mono8", step=wd, data=img.tobytes()), k)
+    rows = ["t_s,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"] + [f"{i / 100},0,0,0,0,0,9.81" for i in range(50)]
+    (d / "imu.csv").write_text("\n".join(rows) + "\n")
+    return d
+
+
+# (command line, the output that is an input, the functions that do the command's work)
+BEFORE_WORK = [
+    ("calibrate hand-eye {d}/poses.csv --out {d}/poses.csv --force", "poses.csv", "hand_eye"),
+    ("calibrate hand-eye {d}/poses.csv --base {d}/cal.yaml --out {d}/cal.yaml --force", "cal.yaml", "hand_eye"),
+    ("calibrate intrinsics {d}/board --out {d}/board/v03.png --force", "board/v03.png", "intrinsics"),
+    ("calibrate intrinsics {d}/board --base {d}/cal.yaml --out {d}/cal.yaml --force", "cal.yaml", "intrinsics"),
+    ("calibrate intrinsics {d}/images.mcap --out {d}/images.mcap --force", "images.mcap", "intrinsics"),
+    ("fusion attitude {d}/imu.csv {d}/imu.csv --force", "imu.csv", "attitude"),
+]
+WORK = {
+    "hand_eye": ["services.fusion.calibrate_hand_eye.read_pose_csv", "services.fusion.calibrate_hand_eye.fit_hand_eye"],
+    "intrinsics": [
+        "services.fusion.calibrate_intrinsics.iter_gray",
+        "services.fusion.calibrate_intrinsics.find_corners",
+    ],
+    "attitude": ["services.fusion.attitude_cli.read_csv", "services.fusion.attitude.estimate"],
+}
+
+
+@pytest.mark.parametrize("line,out,work", BEFORE_WORK, ids=[f"{s.split(' {d}')[0]} -> {o}" for s, o, _ in BEFORE_WORK])
+def test_an_output_that_is_an_input_is_refused_before_any_work(small_files, capsys, monkeypatch, line, out, work):
+    """The refusal comes before the data is read or fitted: the user does not wait for a fit
+    whose result could not be written."""
+    started: list[str] = []
+
+    def work_started(target: str):
+        def fake(*args, **kwargs):
+            started.append(target)
+            raise RuntimeError(f"{target} ran before --out was checked")
+
+        return fake
+
+    for target in WORK[work]:
+        monkeypatch.setattr(target, work_started(target))
+    before = snapshot(small_files)
+    one_line_exit_2(
+        capsys, line.format(d=small_files).split(), f"{small_files / out}: is also an input of this command"
+    )
+    assert started == []
+    assert snapshot(small_files) == before
