@@ -8,7 +8,8 @@ and in other MCAP readers.
 
 Every read goes through `open_reader` (each chunk's CRC checked as it is decompressed) inside
 `reading(path)`, which turns a failure that a damaged file explains into one `UserError` line
-saying where the file is damaged and that `tiplog record recover` salvages it.
+saying where the file is damaged and that `tiplog record recover` salvages it. Metadata records,
+which carry no CRC, are checked against the summary's index of them (`tiplog.mcap_check`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from tiplog import __version__, topics
+from tiplog.mcap_check import DamagedRecord, metadata_records
 from tiplog.userio import UserError, damage_note
 
 PROFILE = ""  # protobuf-encoded channels; no ROS profile
@@ -218,10 +220,18 @@ def raw_messages(path: str | Path, topics_: Iterable[str] | None = None) -> Iter
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
-    """All metadata records by name (a later record of the same name wins)."""
+    """All metadata records by name (a later record of the same name wins). A record that does
+    not match the summary's index of it (metadata carries no CRC) is a UserError saying where:
+    the file's metadata (its calibration, its trials) cannot be trusted."""
     with open(path, "rb") as f, reading(path):
         reader = open_reader(f)
-        return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        summary = reader.get_summary()
+        if summary is None:  # no index to check against: read in file order
+            return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        try:
+            return {m.name: dict(m.metadata) for m in metadata_records(f, summary, Path(path).stat().st_size)}
+        except DamagedRecord as e:
+            raise UserError(f"{path}: {e}; its metadata cannot be trusted") from None
 
 
 def read_attachments(path: str | Path) -> dict[str, bytes]:

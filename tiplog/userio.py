@@ -6,10 +6,12 @@ leaves a half-written file under the final name. Every input checked here is rem
 command, and an output that is the same file as one of them is refused, `--force` or not: the
 command would replace what it reads. An MCAP file whose end is damaged is refused up front, and
 a read that a damaged file explains is one line saying where (`damage_note`, through
-`tiplog.mcap_io.reading`), with the command that salvages it."""
+`tiplog.mcap_io.reading`), with the command that salvages it. A damaged message index, which no
+reader here uses, is one warning line (`tiplog.mcap_check`)."""
 
 from __future__ import annotations
 
+import logging
 import numbers
 import os
 import tempfile
@@ -19,8 +21,11 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from mcap.reader import make_reader
 
-from tiplog import mcap_salvage
+from tiplog import mcap_check, mcap_salvage
+
+log = logging.getLogger(__name__)
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
@@ -31,6 +36,8 @@ class UserError(Exception):
 
 # (path, what) of every input of the running command; `output_file` refuses these.
 _inputs: list[tuple[Path, str]] = []
+# MCAP files this command has already warned about (a damaged message index), said once each.
+_warned: set[Path] = set()
 
 
 def register_input(path: str | os.PathLike, what: str = "input file") -> None:
@@ -41,6 +48,7 @@ def register_input(path: str | os.PathLike, what: str = "input file") -> None:
 def forget_inputs() -> None:
     """A new command starts: none of its files is an input yet (`tiplog.cli.main`)."""
     _inputs.clear()
+    _warned.clear()
 
 
 def _input_behind(p: Path) -> tuple[Path, str] | None:
@@ -120,6 +128,8 @@ def input_mcap(path: str | os.PathLike, allow_truncated: bool = False) -> Path:
     if head != MCAP_MAGIC:
         raise UserError(f"{p}: not an MCAP file")
     if allow_truncated:
+        if mcap_salvage.ends_in_order(p) and not mcap_salvage.trailer_problem(p):
+            _warn_if_index_damaged(p)
         return p
     if not mcap_salvage.ends_in_order(p):
         state, n = mcap_salvage.scan(p)
@@ -128,7 +138,31 @@ def input_mcap(path: str | os.PathLike, allow_truncated: bool = False) -> Path:
     problem = mcap_salvage.trailer_problem(p)  # cheap: the footer and the summary's CRC
     if problem:
         raise UserError(trailer_note(p, problem))
+    _warn_if_index_damaged(p)
     return p
+
+
+def _warn_if_index_damaged(p: Path) -> None:
+    """One warning line when a chunk header or message index (no CRC of their own) does not
+    match the summary. No tiplog reader uses them (each chunk is found through the summary and
+    checked by its CRC), so what is read stays right; other MCAP tools may misplace messages.
+    Said once per file and command."""
+    if p in _warned:
+        return
+    try:
+        with open(p, "rb") as f:
+            summary = make_reader(f).get_summary()
+            damaged = mcap_check.message_index_problem(f, summary, p.stat().st_size) if summary else None
+    except Exception:  # noqa: BLE001 - a summary that does not parse: the read itself says where
+        return
+    if damaged is not None:
+        _warned.add(p)
+        log.warning(
+            "%s: %s; its messages are read from their chunks, which pass their CRC checks, "
+            "but other MCAP tools may misplace them",
+            p,
+            damaged,
+        )
 
 
 def truncation_note(path: Path, state: mcap_salvage.Salvage, messages: int, used: str = "readable") -> str:

@@ -13,6 +13,7 @@ from typing import Any
 
 from mcap.stream_reader import StreamReader
 
+from tiplog.mcap_check import DamagedRecord, metadata_records
 from tiplog.mcap_io import open_reader
 
 NS_PER_S = 1_000_000_000
@@ -87,8 +88,11 @@ def inspect(path: str | Path) -> dict[str, Any]:
         if indexed:
             f.seek(0)
             reader = open_reader(f)
-            for m in reader.iter_metadata():
-                metadata[m.name] = dict(m.metadata)
+            try:  # metadata carries no CRC: each record is checked against the summary's index
+                for m in metadata_records(f, reader.get_summary(), path.stat().st_size):
+                    metadata[m.name] = dict(m.metadata)
+            except DamagedRecord as e:
+                metadata["_read_error"] = {"error": f"{type(e).__name__}: {e}", "note": f"{path}: {e}"}
             for a in reader.iter_attachments():
                 attachments.append({"name": a.name, "media_type": a.media_type, "bytes": len(a.data)})
     by_topic: dict[str, TopicInfo] = {}

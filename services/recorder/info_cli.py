@@ -25,9 +25,13 @@ def _run(args: argparse.Namespace) -> int:
     print(json.dumps(info, indent=1) if args.json else format_info(info))
     if info["indexed"]:
         error = info["metadata"].get("_read_error")
-        if error is None:
+        problem = mcap_salvage.trailer_problem(path)  # the summary it was read through, by its CRC
+        if error is None and not problem:
             return 0
-        note = damage_note(path) or f"{path}: not all of it could be read ({error['error']})"
+        if error is None:
+            note = trailer_note(path, problem)
+        else:
+            note = error.get("note") or damage_note(path) or f"{path}: not all of it could be read ({error['error']})"
     else:
         state, n = mcap_salvage.scan(path)
         if state.complete:  # a finished data section: nothing lost, but its end may be damaged
