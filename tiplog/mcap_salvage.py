@@ -108,14 +108,33 @@ def scan(path: str | Path) -> tuple[Salvage, int]:
     return state, n
 
 
+def mcap_end(path: str | Path) -> int | None:
+    """The byte after the closing magic of the file's MCAP data, found by reading its records in
+    file order (chunks not decompressed); None when the footer or the magic is not reached (the
+    end cut off, or damage before it)."""
+    with open(path, "rb") as f:
+        counting = _Counting(f)
+        try:
+            for _ in StreamReader(counting, emit_chunks=True, record_size_limit=1 << 31).records:  # type: ignore[arg-type]
+                pass
+        except Exception:  # noqa: BLE001 - any failure: no whole MCAP end to find
+            return None
+    return counting.pos
+
+
 def trailer_problem(path: str | Path) -> str:
     """What is wrong with the end of the file, in a few words, or "" when it ends with a footer
     and the magic and the summary section matches the footer's CRC (when the writer set one).
-    Reads only the footer and the summary, which the indexed readers trust for every offset."""
+    Reads only the footer and the summary, which the indexed readers trust for every offset;
+    a file that does not end with the magic is read through to say how many bytes follow its
+    MCAP end, if it has one."""
     p = Path(path)
-    if not ends_in_order(p):
-        return "no MCAP footer at the end of the file (bytes appended after it, or its end cut off)"
     size = p.stat().st_size
+    if not ends_in_order(p):
+        end = mcap_end(p)
+        if end is not None and end < size:
+            return f"{size - end} bytes after the end of its MCAP data (byte {end}) are not MCAP (appended to it)"
+        return "no MCAP footer at the end of the file (its end cut off)"
     footer_at = size - len(MAGIC) - FOOTER.size
     if footer_at < len(MAGIC):
         return "no footer record before the closing magic"

@@ -49,12 +49,18 @@ def _run(args: argparse.Namespace) -> int:
         log_level: str = "INFO"
 
     from tiplog import mcap_salvage
-    from tiplog.userio import UserError, input_mcap, truncation_note
+    from tiplog.userio import UserError, input_mcap, trailer_note, truncation_note
 
     path = input_mcap(args.recording, allow_truncated=True)
-    if not mcap_salvage.ends_in_order(path):
+    problem = mcap_salvage.trailer_problem(path)
+    if problem:
         state, n = mcap_salvage.scan(path)
-        if not state.complete and n == 0:  # nothing to replay: say so before joining the bus
+        if state.complete:
+            # The data is whole and only what follows it is wrong (bytes appended, the footer
+            # cut off, a summary failing its CRC): refused before joining the bus, in the line
+            # every other reader gives; `record recover` rebuilds the file losing nothing.
+            raise UserError(trailer_note(path, problem))
+        if n == 0:  # nothing to replay: say so before joining the bus
             raise UserError(truncation_note(path, state, n))
     # Standalone: with no router on this machine, the first tiplog process holds the endpoint
     # and the others (`tiplog record run` in another terminal) join it.

@@ -189,6 +189,30 @@ def test_replay_stops_at_a_damaged_chunk_with_exit_2(files):
     assert f"{bad}: damaged at byte" in err[0] and f"tiplog record recover {bad}" in err[0], err[0]
 
 
+@pytest.mark.parametrize("kind", ["appended", "cut4"])
+def test_replay_refuses_a_whole_recording_with_a_damaged_end_as_fusion_run_does(files, capsys, kind):
+    """Its data is intact, only what follows it is not: replay played it with exit 0 and no
+    word while every other reader refused it; now it gives their line, before joining the bus."""
+    bad = damaged(files / "in.mcap", files / f"{kind}.mcap", kind)
+    fusion = one_line_exit_2(capsys, ["fusion", "run", bad, "--out", files / "o.mcap", "--quiet"])
+    argv = ["replay", str(bad), "--max", "--wait", "0", "--mode", "peer", "-l", f"tcp/127.0.0.1:{free_port()}"]
+    r = subprocess.run(
+        [sys.executable, "-m", "tiplog.cli", *argv],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(err) == 1 and "replayed" not in r.stdout, (r.stdout, r.stderr)
+    assert err[0].removeprefix("tiplog replay: ") == fusion.removeprefix("tiplog fusion: ")
+    if kind == "appended":  # how many bytes follow the end, and where it is
+        end = (files / "in.mcap").stat().st_size
+        assert f"{bad}: {bad.stat().st_size - end} bytes after the end of its MCAP data (byte {end})" in err[0]
+    assert f"`tiplog record recover {bad}`" in err[0]
+
+
 def test_record_recover_still_salvages_a_damaged_file(files, capsys):
     for kind in ("flip", "appended"):
         bad = damaged(files / "in.mcap", files / f"{kind}.mcap", kind)
