@@ -102,8 +102,11 @@ def run_service(
     argv: Sequence[str] | None = None,
     description: str | None = None,
     extra_arguments: Callable[[argparse.ArgumentParser], None] | None = None,
+    check: Callable[[C], None] | None = None,
 ) -> int:
-    """Parse arguments, load configuration, open the bus and run `body` until a signal."""
+    """Parse arguments, load configuration, open the bus and run `body` until a signal.
+    `check` raises ConfigError for what the model alone cannot validate (a file the
+    configuration names, a combination of fields): one line, exit 2, before the bus opens."""
     parser = argparse.ArgumentParser(prog=f"python -m services.{name}", description=description)
     add_config_arguments(parser)
     if extra_arguments:
@@ -111,6 +114,8 @@ def run_service(
     args = parser.parse_args(argv)
     try:
         config = load_config(config_model, name, args.config, overrides_from_args(args))
+        if check is not None:
+            check(config)
     except ConfigError as e:
         print(str(e), file=sys.stderr)
         return 2

@@ -60,6 +60,24 @@ def write_calibration(cfg: BenchConfig) -> Path | None:
     return final
 
 
+def check_duration(cfg: BenchConfig) -> None:
+    """ConfigError when one pass (duration_s, else the scenario's) holds no sample of some
+    device stream: the simulation cannot play it (an empty stream was a traceback after the
+    bus had opened). The rule and the words of `tiplog sim generate`."""
+    from services.bench.scenario import load_scenario
+    from services.bench.simulation import shortest_duration
+
+    scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
+    duration = cfg.duration_s if cfg.duration_s is not None else scenario.duration_s
+    shortest, stream, rate = shortest_duration(scenario)
+    if duration is not None and duration < shortest:
+        what = "duration_s" if cfg.duration_s is not None else f"the scenario's duration_s ({cfg.scenario})"
+        raise ConfigError(
+            f"config error: {what}: {duration:g} s holds no sample of the {stream} stream at {rate:g} Hz; "
+            f"give at least {shortest:.3f} s"
+        )
+
+
 def _prepare(cfg: BenchConfig):
     """Scenario + one simulated pass (imports Pinocchio and the models: seconds)."""
     from services.bench.live import prepare
@@ -126,4 +144,4 @@ def body(ctx: ServiceContext[BenchConfig]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_service(NAME, BenchConfig, body, argv, description=__doc__)
+    return run_service(NAME, BenchConfig, body, argv, description=__doc__, check=check_duration)
