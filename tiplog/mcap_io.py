@@ -56,7 +56,9 @@ class McapWriter:
             raise ValueError(f"compression must be one of {', '.join(comp)} (got {compression!r})")
         self._own = isinstance(output, (str, Path))
         self._stream: IO[bytes] = open(output, "wb") if self._own else output  # noqa: SIM115
-        self._w = _Writer(self._stream, chunk_size=chunk_size, compression=comp[compression])
+        # enable_data_crcs: the data section's CRC also covers the records with none of their
+        # own (metadata: the calibration, the trials), so a reader can tell they were changed
+        self._w = _Writer(self._stream, chunk_size=chunk_size, compression=comp[compression], enable_data_crcs=True)
         self._w.start(profile=PROFILE, library=LIBRARY)
         self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}

@@ -20,6 +20,8 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 MAGIC = b"\x89MCAP0\r\n"
 FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary_start, summary_offset_start, summary_crc
 FOOTER_OPCODE = 0x02
+DATA_END = struct.Struct("<BQI")  # opcode, record length, data_section_crc
+DATA_END_OPCODE = 0x0F
 
 
 class _Counting:
@@ -157,3 +159,34 @@ def trailer_problem(path: str | Path) -> str:
             h = zlib.crc32(block, h)
             left -= len(block)
     return "" if h == crc else "its summary (the index after the data) fails its CRC check"
+
+
+def data_crc_fails(path: str | Path) -> bool:
+    """True when the writer recorded a CRC of the data section (everything before its Data End
+    record, the magic included) and the bytes there no longer match it. False when no CRC was
+    recorded (zero: older files, other writers) or the Data End record is not where the footer
+    puts it (`trailer_problem` speaks for such a file). Reads the whole data section once."""
+    p = Path(path)
+    size = p.stat().st_size
+    footer_at = size - len(MAGIC) - FOOTER.size
+    if footer_at < len(MAGIC):
+        return False
+    with open(p, "rb") as f:
+        f.seek(footer_at)
+        _, _, start, _, _ = FOOTER.unpack(f.read(FOOTER.size))
+        end_at = (start or footer_at) - DATA_END.size
+        if not len(MAGIC) <= end_at <= footer_at - DATA_END.size:
+            return False
+        f.seek(end_at)
+        opcode, length, crc = DATA_END.unpack(f.read(DATA_END.size))
+        if opcode != DATA_END_OPCODE or length != 4 or crc == 0:
+            return False
+        f.seek(0)
+        left, h = end_at, 0
+        while left > 0:
+            block = f.read(min(left, 1 << 22))
+            if not block:
+                return True
+            h = zlib.crc32(block, h)
+            left -= len(block)
+    return h != crc

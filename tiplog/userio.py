@@ -7,7 +7,8 @@ command, and an output that is the same file as one of them is refused, `--force
 command would replace what it reads. An MCAP file whose end is damaged is refused up front, and
 a read that a damaged file explains is one line saying where (`damage_note`, through
 `tiplog.mcap_io.reading`), with the command that salvages it. A damaged message index, which no
-reader here uses, is one warning line (`tiplog.mcap_check`)."""
+reader here uses, is one warning line, and a file whose data section fails the CRC its writer
+recorded is refused when no chunk explains it (`records_note`)."""
 
 from __future__ import annotations
 
@@ -36,8 +37,8 @@ class UserError(Exception):
 
 # (path, what) of every input of the running command; `output_file` refuses these.
 _inputs: list[tuple[Path, str]] = []
-# MCAP files this command has already warned about (a damaged message index), said once each.
-_warned: set[Path] = set()
+# MCAP files whose records without a CRC this command has checked (`records_note`).
+_checked: set[Path] = set()
 
 
 def register_input(path: str | os.PathLike, what: str = "input file") -> None:
@@ -48,7 +49,7 @@ def register_input(path: str | os.PathLike, what: str = "input file") -> None:
 def forget_inputs() -> None:
     """A new command starts: none of its files is an input yet (`tiplog.cli.main`)."""
     _inputs.clear()
-    _warned.clear()
+    _checked.clear()
 
 
 def _input_behind(p: Path) -> tuple[Path, str] | None:
@@ -114,11 +115,13 @@ def input_file(path: str | os.PathLike, what: str = "input file") -> Path:
     return p
 
 
-def input_mcap(path: str | os.PathLike, allow_truncated: bool = False) -> Path:
+def input_mcap(path: str | os.PathLike, allow_truncated: bool = False, check_records: bool = True) -> Path:
     """`path` as a readable file that starts with the MCAP magic, or UserError. A file cut short
     (no footer: a crash, a full disk) is refused with how far it can be read and the command
     that rebuilds it, unless `allow_truncated` (the caller then reads it with
-    `tiplog.mcap_salvage` and says so with `truncation_note`)."""
+    `tiplog.mcap_salvage` and says so with `truncation_note`). The records without a CRC of
+    their own are checked (`records_note`) unless not `check_records` (a command that shows or
+    copies a damaged file as it is)."""
     p = input_file(path, "MCAP file")
     try:
         with open(p, "rb") as f:
@@ -128,8 +131,8 @@ def input_mcap(path: str | os.PathLike, allow_truncated: bool = False) -> Path:
     if head != MCAP_MAGIC:
         raise UserError(f"{p}: not an MCAP file")
     if allow_truncated:
-        if mcap_salvage.ends_in_order(p) and not mcap_salvage.trailer_problem(p):
-            _warn_if_index_damaged(p)
+        if check_records and mcap_salvage.ends_in_order(p) and not mcap_salvage.trailer_problem(p):
+            _refuse(records_note(p))
         return p
     if not mcap_salvage.ends_in_order(p):
         state, n = mcap_salvage.scan(p)
@@ -138,31 +141,62 @@ def input_mcap(path: str | os.PathLike, allow_truncated: bool = False) -> Path:
     problem = mcap_salvage.trailer_problem(p)  # cheap: the footer and the summary's CRC
     if problem:
         raise UserError(trailer_note(p, problem))
-    _warn_if_index_damaged(p)
+    if check_records:
+        _refuse(records_note(p))
     return p
 
 
-def _warn_if_index_damaged(p: Path) -> None:
-    """One warning line when a chunk header or message index (no CRC of their own) does not
-    match the summary. No tiplog reader uses them (each chunk is found through the summary and
-    checked by its CRC), so what is read stays right; other MCAP tools may misplace messages.
-    Said once per file and command."""
-    if p in _warned:
-        return
+def _refuse(note: str | None) -> None:
+    if note is not None:
+        raise UserError(note)
+
+
+def records_note(p: Path) -> str | None:
+    """The records that carry no CRC of their own, checked once per file and command: one
+    line saying what is wrong, or None.
+
+    A chunk header or message index that does not match the summary is one warning line: no
+    tiplog reader uses them (each chunk is found through the summary and checked by its CRC),
+    so what is read stays right; other MCAP tools may misplace messages. Otherwise, when the
+    data section fails the CRC its writer recorded (tiplog's writers record one), the damage is
+    a chunk's (None: the read says where, as before), a metadata record that no longer parses
+    (a line saying where), or a change inside a record with no CRC that keeps its length, such
+    as a digit of the calibration (a line: its metadata cannot be trusted)."""
+    if p in _checked:
+        return None
     try:
         with open(p, "rb") as f:
             summary = make_reader(f).get_summary()
             damaged = mcap_check.message_index_problem(f, summary, p.stat().st_size) if summary else None
     except Exception:  # noqa: BLE001 - a summary that does not parse: the read itself says where
-        return
+        return None
     if damaged is not None:
-        _warned.add(p)
         log.warning(
             "%s: %s; its messages are read from their chunks, which pass their CRC checks, "
             "but other MCAP tools may misplace them",
             p,
             damaged,
         )
+    elif mcap_salvage.data_crc_fails(p) and damage_note(p) is None:
+        return _changed_records_note(p, summary)
+    _checked.add(p)
+    return None
+
+
+def _changed_records_note(p: Path, summary: Any) -> str:
+    """The line for a file whose data section fails its CRC though every chunk passes its own."""
+    if summary is not None:
+        try:
+            with open(p, "rb") as f:
+                for _ in mcap_check.metadata_records(f, summary, p.stat().st_size):
+                    pass
+        except mcap_check.DamagedRecord as e:
+            return f"{p}: {e}; its metadata cannot be trusted"
+    return (
+        f"{p}: its data section fails the CRC its writer recorded, though every chunk passes its own: "
+        "bytes changed in a record that has no CRC of its own (its metadata: the calibration, the trials), "
+        f"so its metadata cannot be trusted; `tiplog record recover {p}` copies it as it now is"
+    )
 
 
 def truncation_note(path: Path, state: mcap_salvage.Salvage, messages: int, used: str = "readable") -> str:

@@ -125,13 +125,21 @@ def format_status(st, headline: str = "") -> str:  # type: ignore[no-untyped-def
     return "\n".join(lines)
 
 
+def _ends_whole(path) -> bool:
+    """The file ends with its footer and a summary that passes its CRC (its indexes usable)."""
+    from tiplog import mcap_salvage
+
+    return mcap_salvage.ends_in_order(path) and not mcap_salvage.trailer_problem(path)
+
+
 def _recover(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from services.recorder.recover import recover
-    from tiplog.userio import UserError, atomic_output, input_mcap
+    from tiplog.userio import UserError, atomic_output, input_mcap, records_note
 
-    src = input_mcap(args.file, allow_truncated=True)
+    src = input_mcap(args.file, allow_truncated=True, check_records=False)  # copied as it is
+    changed = records_note(src) if src.stat().st_size and _ends_whole(src) else None
     out = Path(args.out) if args.out else src.with_suffix(".recovered.mcap")
     if out.exists() and out.resolve() == src.resolve():
         raise UserError(f"{out}: --out must differ from the file being recovered")
@@ -144,6 +152,11 @@ def _recover(args: argparse.Namespace) -> int:
     print(f"{out}: kept {rep.messages} messages, {rep.metadata} metadata, {rep.attachments} attachments")
     for topic, n in sorted(rep.messages_by_topic.items()):
         print(f"  {topic:<24}{n:>10}")
+    if changed:
+        print(
+            f"{changed.split('; ', 1)[0]}; its records were copied as they were read: check its metadata",
+            file=sys.stderr,
+        )
     if rep.complete:
         print("the source was complete: nothing lost")
     else:

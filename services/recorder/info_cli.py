@@ -18,17 +18,19 @@ def register(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from services.recorder.info import format_info, inspect
     from tiplog import mcap_salvage
-    from tiplog.userio import damage_note, input_mcap, trailer_note, truncation_note
+    from tiplog.userio import damage_note, input_mcap, records_note, trailer_note, truncation_note
 
-    path = input_mcap(args.recording, allow_truncated=True)
+    path = input_mcap(args.recording, allow_truncated=True, check_records=False)  # shown as it is
     info = inspect(path)
     print(json.dumps(info, indent=1) if args.json else format_info(info))
     if info["indexed"]:
         error = info["metadata"].get("_read_error")
         problem = mcap_salvage.trailer_problem(path)  # the summary it was read through, by its CRC
         if error is None and not problem:
-            return 0
-        if error is None:
+            note = records_note(path)  # metadata changed where no CRC of its own would tell
+            if note is None:
+                return 0
+        elif error is None:
             note = trailer_note(path, problem)
         else:
             note = error.get("note") or damage_note(path) or f"{path}: not all of it could be read ({error['error']})"

@@ -76,6 +76,7 @@ def recover(source: str | Path, output: str | Path, *, compression: str = "lz4")
             compression=CompressionType.LZ4
             if compression == "lz4"
             else _COMPRESSION.get(compression, CompressionType.ZSTD),
+            enable_data_crcs=True,
         )
         w.start(profile=PROFILE, library=LIBRARY)
         schema_map: dict[int, int] = {}

@@ -17,8 +17,9 @@ from mcap.stream_reader import StreamReader
 
 from tests.conftest import ROOT, free_port
 from tests.services.fusion.sessions import sweeps_session_fixture  # noqa: F401 (fixture session)
+from tiplog import mcap_salvage
 from tiplog.mcap_io import read_messages, read_metadata, read_summary
-from tiplog.userio import UserError
+from tiplog.userio import UserError, forget_inputs, input_mcap
 
 CALIBRATION = "calibration_as_calibrated"  # the metadata record `fusion run` takes its constants from
 
@@ -138,3 +139,51 @@ def test_info_says_when_the_summary_it_read_fails_its_crc(session, tmp_path):
         f"tiplog info: {bad}: its summary (the index after the data) fails its CRC check; "
         f"run `tiplog record recover {bad}` for a repaired file"
     )
+
+
+def changed_digit(src, dst):
+    """A copy of `src` with one digit of its calibration metadata changed: the same length, still
+    text, so the record parses and matches its index; only the data section's CRC can tell."""
+    data = bytearray(src.read_bytes())
+    i = data.index(b"0.", metadata_at(src, CALIBRATION)) + 3
+    data[i] = ord("7") if data[i] != ord("7") else ord("3")
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def test_a_changed_digit_in_the_calibration_is_refused_shown_by_info_and_copied_by_recover(session, tmp_path):
+    bad = changed_digit(session, tmp_path / "digit.mcap")
+    assert read_metadata(bad)[CALIBRATION] != read_metadata(session)[CALIBRATION]  # read as if whole
+    assert not mcap_salvage.data_crc_fails(session) and mcap_salvage.data_crc_fails(bad)
+    out = tmp_path / "est.mcap"
+    r = tiplog("fusion", "run", bad, "--out", out, "--quiet")  # ran on the changed constants, exit 0
+    err = lines(r.stderr)
+    assert r.returncode == 2 and len(err) == 1 and not out.exists(), r.stderr
+    assert err[0].startswith(f"tiplog fusion: {bad}: its data section fails the CRC its writer recorded")
+    assert "its metadata cannot be trusted" in err[0]
+    r = tiplog("info", bad)
+    err = lines(r.stderr)
+    assert r.returncode == 2 and len(err) == 1 and "topic" in r.stdout, r.stderr
+    assert "fails the CRC its writer recorded" in err[0]
+    copy = tmp_path / "copy.mcap"
+    r = tiplog("record", "recover", bad, "--out", copy)
+    assert r.returncode == 0 and "copied as they were read" in r.stderr, r.stderr
+    assert read_metadata(copy)[CALIBRATION] == read_metadata(bad)[CALIBRATION]
+    assert tiplog("fusion", "run", copy, "--out", out, "--quiet").returncode == 0  # the user's choice
+
+
+def test_a_file_whose_writer_recorded_no_data_crc_is_read_as_before(session, tmp_path):
+    """A zero data-section CRC means none was recorded (other writers, older files): nothing to check."""
+    data = bytearray(changed_digit(session, tmp_path / "digit.mcap").read_bytes())
+    footer_at = len(data) - 8 - mcap_salvage.FOOTER.size
+    start = mcap_salvage.FOOTER.unpack_from(data, footer_at)[2]
+    end_at = start - mcap_salvage.DATA_END.size
+    assert data[end_at] == mcap_salvage.DATA_END_OPCODE
+    data[end_at + 9 : end_at + 13] = bytes(4)
+    old = tmp_path / "no_crc.mcap"
+    old.write_bytes(bytes(data))
+    assert not mcap_salvage.data_crc_fails(old)
+    try:
+        assert input_mcap(old) == old
+    finally:
+        forget_inputs()  # this command's inputs end here
