@@ -65,17 +65,13 @@ def check_duration(cfg: BenchConfig) -> None:
     device stream: the simulation cannot play it (an empty stream was a traceback after the
     bus had opened). The rule and the words of `tiplog sim generate`."""
     from services.bench.scenario import load_scenario
-    from services.bench.simulation import shortest_duration
+    from services.bench.simulation import duration_problem
 
     scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
-    duration = cfg.duration_s if cfg.duration_s is not None else scenario.duration_s
-    shortest, stream, rate = shortest_duration(scenario)
-    if duration is not None and duration < shortest:
-        what = "duration_s" if cfg.duration_s is not None else f"the scenario's duration_s ({cfg.scenario})"
-        raise ConfigError(
-            f"config error: {what}: {duration:g} s holds no sample of the {stream} stream at {rate:g} Hz; "
-            f"give at least {shortest:.3f} s"
-        )
+    what = "duration_s" if cfg.duration_s is not None else f"the scenario's duration_s ({cfg.scenario})"
+    problem = duration_problem(scenario, cfg.duration_s if cfg.duration_s is not None else scenario.duration_s, what)
+    if problem:
+        raise ConfigError(f"config error: {problem}")
 
 
 def _prepare(cfg: BenchConfig):

@@ -62,21 +62,17 @@ def _progress(quiet: bool):
 def _generate(args: argparse.Namespace) -> int:
     from services.bench.scenario import BUILTIN, load_scenario
     from services.bench.session import generate
-    from services.bench.simulation import shortest_duration
+    from services.bench.simulation import duration_problem
     from tiplog.userio import UserError, atomic_output, output_file, register_input
 
     if args.scenario not in BUILTIN and Path(args.scenario).is_file():
         register_input(args.scenario, "scenario file")  # never replaced by --out
     output_file(args.out, args.force)  # before any work: a bad --out costs nothing
     sc = load_scenario(args.scenario, args.overrides)  # ConfigError -> exit 2 with the field named
-    duration = args.duration if args.duration is not None else sc.duration_s
-    shortest, stream, rate = shortest_duration(sc)
-    if duration is not None and duration < shortest:
-        what = "--duration" if args.duration is not None else f"the scenario's duration_s ({args.scenario})"
-        raise UserError(
-            f"{what}: {duration:g} s holds no sample of the {stream} stream at {rate:g} Hz; "
-            f"give at least {shortest:.3f} s"
-        )
+    what = "--duration" if args.duration is not None else f"the scenario's duration_s ({args.scenario})"
+    problem = duration_problem(sc, args.duration if args.duration is not None else sc.duration_s, what)
+    if problem:
+        raise UserError(problem)
     # Written under a temporary name and renamed when complete: Ctrl-C leaves nothing under --out.
     with atomic_output(args.out, args.force) as tmp:
         summary = generate(

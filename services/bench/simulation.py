@@ -108,6 +108,15 @@ def shortest_duration(scenario: Scenario) -> tuple[float, str, float]:
     return math.ceil((1.0 / rates[name] + 0.003) * 1e3 - 1e-6) / 1e3, name, rates[name]
 
 
+def duration_problem(scenario: Scenario, duration_s: float | None, what: str) -> str | None:
+    """What is wrong with playing `duration_s` seconds of `scenario` (a setting named `what`),
+    in the words of `tiplog sim generate` and the live bench, or None (see `shortest_duration`)."""
+    shortest, stream, rate = shortest_duration(scenario)
+    if duration_s is None or duration_s >= shortest:
+        return None
+    return f"{what}: {duration_s:g} s holds no sample of the {stream} stream at {rate:g} Hz; give at least {shortest:.3f} s"
+
+
 def simulate_session(
     scenario: Scenario, seed: int = 0, tier: str = "measurement", duration_s: float | None = None
 ) -> SimulatedSession:

@@ -173,10 +173,10 @@ def test_vision_run_refuses_a_damaged_chunk(files, capsys):
     assert snapshot(files) == before
 
 
-def test_replay_stops_at_a_damaged_chunk_with_exit_2(files):
-    bad = damaged(files / "in.mcap", files / "flip.mcap", "flip")
-    argv = ["replay", str(bad), "--max", "--wait", "0", "--mode", "peer", "-l", f"tcp/127.0.0.1:{free_port()}"]
-    r = subprocess.run(
+def replay(path) -> subprocess.CompletedProcess:
+    """`tiplog replay PATH` as fast as it goes, in a process of its own on a peer session."""
+    argv = ["replay", str(path), "--max", "--wait", "0", "--mode", "peer", "-l", f"tcp/127.0.0.1:{free_port()}"]
+    return subprocess.run(
         [sys.executable, "-m", "tiplog.cli", *argv],
         cwd=ROOT,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
@@ -184,6 +184,11 @@ def test_replay_stops_at_a_damaged_chunk_with_exit_2(files):
         text=True,
         timeout=120,
     )
+
+
+def test_replay_stops_at_a_damaged_chunk_with_exit_2(files):
+    bad = damaged(files / "in.mcap", files / "flip.mcap", "flip")
+    r = replay(bad)
     err = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(err) == 1, r.stderr
     assert f"{bad}: damaged at byte" in err[0] and f"tiplog record recover {bad}" in err[0], err[0]
@@ -195,15 +200,7 @@ def test_replay_refuses_a_whole_recording_with_a_damaged_end_as_fusion_run_does(
     word while every other reader refused it; now it gives their line, before joining the bus."""
     bad = damaged(files / "in.mcap", files / f"{kind}.mcap", kind)
     fusion = one_line_exit_2(capsys, ["fusion", "run", bad, "--out", files / "o.mcap", "--quiet"])
-    argv = ["replay", str(bad), "--max", "--wait", "0", "--mode", "peer", "-l", f"tcp/127.0.0.1:{free_port()}"]
-    r = subprocess.run(
-        [sys.executable, "-m", "tiplog.cli", *argv],
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    r = replay(bad)
     err = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(err) == 1 and "replayed" not in r.stdout, (r.stdout, r.stderr)
     assert err[0].removeprefix("tiplog replay: ") == fusion.removeprefix("tiplog fusion: ")
