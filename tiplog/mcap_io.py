@@ -221,6 +221,18 @@ def raw_messages(path: str | Path, topics_: Iterable[str] | None = None) -> Iter
         yield from open_reader(f).iter_messages(topics=wanted, log_time_order=True)
 
 
+def topic_span(path: str | Path, topic: str) -> tuple[int, int] | None:
+    """(first, last) log time [ns] of `topic`'s messages, or None when it has none. Reads the
+    first and the last chunk that hold it (through the summary), not the whole file."""
+    with open(path, "rb") as f, reading(path):
+        reader = open_reader(f)
+        first = next(reader.iter_messages(topics=[topic], log_time_order=True), None)
+        if first is None:
+            return None
+        last = next(reader.iter_messages(topics=[topic], log_time_order=True, reverse=True))
+        return first[2].log_time, last[2].log_time
+
+
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """All metadata records by name (a later record of the same name wins). A record that does
     not match the summary's index of it (metadata carries no CRC) is a UserError saying where:

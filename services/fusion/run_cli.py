@@ -19,7 +19,7 @@ from services.fusion.params import Params, ParamsError, mode_name, parse_sensors
 from services.fusion.runner import FusionRunner
 from tiplog import topics
 from tiplog.calibration import Calibration, CalibrationError
-from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary
+from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary, topic_span
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 log = logging.getLogger("tiplog.fusion")
@@ -74,8 +74,9 @@ def _metadata(src: Path) -> dict[str, dict[str, str]]:
 
 
 def check_streams(src: Path, sensors: frozenset[str], announced: dict[str, float]) -> None:
-    """IMU topics present, each used stream near its nominal rate (from the file's summary):
-    the rate the device announced where `announced` names it, else the paper's module's."""
+    """IMU topics present, each used stream near its nominal rate (its count in the file's
+    summary over its own first-to-last span): the rate the device announced where `announced`
+    names it, else the paper's module's."""
     try:
         summary = read_summary(src)
     except UserError:
@@ -101,7 +102,10 @@ def check_streams(src: Path, sensors: frozenset[str], announced: dict[str, float
             if t != "device/gyro":
                 log.warning("%s: no %s messages; running without them", src, t)
             continue
-        rate = counts[t] / span_s
+        # over the stream's own span: a recording started before the device (a recorder that
+        # waits for the bench, a module plugged in later) holds other topics before it
+        first, last = topic_span(src, t) or (0, 0)
+        rate = (counts[t] - 1) / ((last - first) * 1e-9) if last > first else 0.0
         nominal = announced.get(t, NOMINAL_HZ[t])
         high = float("inf") if t == "vision/observation" else nominal / RATE_TOLERANCE  # a faster camera is fine
         if not (nominal * RATE_TOLERANCE <= rate <= high):

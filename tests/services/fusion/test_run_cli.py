@@ -164,3 +164,26 @@ def test_evaluate_says_how_much_of_a_block_the_estimate_covers(tmp_path, capsys,
     assert all(blk["coverage"] > 0.99 for blk in r["blocks"][1:])
     assert r["pooled"]["coverage"] < 0.99
     assert "estimate covers 50 %" in out and "warning" in out
+
+
+def test_a_recording_longer_than_the_device_streams_is_run(tmp_path, session):
+    """The recorder runs before the bench or the module starts (seconds under load) and after
+    it stops: the file's span holds other topics beyond the device's. Each stream's rate is
+    taken over its own span, so such a file is not refused as "far off its nominal" (a live
+    recording under load was)."""
+    late = tmp_path / "long.mcap"
+    records = list(read_messages(session))
+    t1 = max(r.log_time_ns for r in records)
+    other = next(r for r in records if r.topic == "bench/robot")
+    with McapWriter(late) as w:
+        for name, rec in read_metadata(session).items():
+            w.add_metadata(name, rec)
+        for r in records:
+            w.write(r.topic, r.message, r.log_time_ns)
+        w.write(other.topic, other.message, t1 + 20_000_000_000)  # 20 s after the device's last sample
+    out = tmp_path / "est.mcap"
+    assert tiplog_main(["fusion", "run", str(late), "--out", str(out), "--quiet"]) == 0
+    a = [r.message.SerializeToString() for r in read_messages(out, ["fusion/state"])]
+    ref = tmp_path / "ref.mcap"
+    assert tiplog_main(["fusion", "run", str(session), "--out", str(ref), "--quiet"]) == 0
+    assert a == [r.message.SerializeToString() for r in read_messages(ref, ["fusion/state"])] and len(a) > 100
