@@ -9,6 +9,7 @@ import copy
 import dataclasses
 import json
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -152,6 +153,10 @@ def test_what_the_bench_and_calibrate_write_reads_back(tmp_path, bench_dict):
 
 
 def test_cli_names_the_field_in_one_line(tmp_path, capsys, bench_dict):
+    # the inputs exist: they are checked before --base is read
+    (tmp_path / "poses.csv").write_text("x\n")
+    (tmp_path / "images").mkdir()
+    cv2.imwrite(str(tmp_path / "images" / "v00.png"), np.zeros((8, 8), np.uint8))
     for path, value, field in (
         ("tof_plane_h_m", float("nan"), "tof_plane_h_m"),
         ("shaft_radius_m", "abc", "shaft_radius_m"),
@@ -161,7 +166,7 @@ def test_cli_names_the_field_in_one_line(tmp_path, capsys, bench_dict):
         base = _write(tmp_path, _set(bench_dict, path, value), "base.yaml")
         for argv in (
             ["calibrate", "hand-eye", str(tmp_path / "poses.csv"), "--base", str(base)],
-            ["calibrate", "intrinsics", str(tmp_path), "--base", str(base)],
+            ["calibrate", "intrinsics", str(tmp_path / "images"), "--base", str(base)],
         ):
             assert main([*argv, "--out", str(tmp_path / "out.yaml")]) == 2
             err = capsys.readouterr().err.strip().splitlines()
