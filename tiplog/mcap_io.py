@@ -221,16 +221,19 @@ def raw_messages(path: str | Path, topics_: Iterable[str] | None = None) -> Iter
         yield from open_reader(f).iter_messages(topics=wanted, log_time_order=True)
 
 
-def topic_span(path: str | Path, topic: str) -> tuple[int, int] | None:
-    """(first, last) log time [ns] of `topic`'s messages, or None when it has none. Reads the
-    first and the last chunk that hold it (through the summary), not the whole file."""
+def topic_spans(path: str | Path, topics_: Iterable[str]) -> dict[str, tuple[int, int]]:
+    """(first, last) log time [ns] of each topic's messages, for those of `topics_` that have
+    any. Reads the first and the last chunk that hold each (through the summary), not the
+    whole file."""
+    out = {}
     with open(path, "rb") as f, reading(path):
         reader = open_reader(f)
-        first = next(reader.iter_messages(topics=[topic], log_time_order=True), None)
-        if first is None:
-            return None
-        last = next(reader.iter_messages(topics=[topic], log_time_order=True, reverse=True))
-        return first[2].log_time, last[2].log_time
+        for t in topics_:
+            first = next(reader.iter_messages(topics=[t], log_time_order=True), None)
+            if first is not None:
+                last = next(reader.iter_messages(topics=[t], log_time_order=True, reverse=True))
+                out[t] = (first[2].log_time, last[2].log_time)
+    return out
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:

@@ -150,15 +150,21 @@ def trailer_problem(path: str | Path) -> str:
         if crc == 0:
             return ""
         begin = start or footer_at  # the CRC runs from the summary through the footer's offsets
-        f.seek(begin)
-        left, h = size - len(MAGIC) - 4 - begin, 0
-        while left > 0:
-            block = f.read(min(left, 1 << 20))
-            if not block:
-                break
-            h = zlib.crc32(block, h)
-            left -= len(block)
+        h = _crc32(f, begin, size - len(MAGIC) - 4 - begin)
     return "" if h == crc else "its summary (the index after the data) fails its CRC check"
+
+
+def _crc32(f: IO[bytes], begin: int, length: int) -> int | None:
+    """CRC-32 of `length` bytes of `f` from `begin`, or None when the file ends before them."""
+    f.seek(begin)
+    left, h = length, 0
+    while left > 0:
+        block = f.read(min(left, 1 << 22))
+        if not block:
+            return None
+        h = zlib.crc32(block, h)
+        left -= len(block)
+    return h
 
 
 def data_crc_fails(path: str | Path) -> bool:
@@ -181,12 +187,4 @@ def data_crc_fails(path: str | Path) -> bool:
         opcode, length, crc = DATA_END.unpack(f.read(DATA_END.size))
         if opcode != DATA_END_OPCODE or length != 4 or crc == 0:
             return False
-        f.seek(0)
-        left, h = end_at, 0
-        while left > 0:
-            block = f.read(min(left, 1 << 22))
-            if not block:
-                return True
-            h = zlib.crc32(block, h)
-            left -= len(block)
-    return h != crc
+        return _crc32(f, 0, end_at) != crc

@@ -131,7 +131,7 @@ def input_mcap(path: str | os.PathLike, allow_truncated: bool = False, check_rec
     if head != MCAP_MAGIC:
         raise UserError(f"{p}: not an MCAP file")
     if allow_truncated:
-        if check_records and mcap_salvage.ends_in_order(p) and not mcap_salvage.trailer_problem(p):
+        if check_records:
             _refuse(records_note(p))
         return p
     if not mcap_salvage.ends_in_order(p):
@@ -153,7 +153,8 @@ def _refuse(note: str | None) -> None:
 
 def records_note(p: Path) -> str | None:
     """The records that carry no CRC of their own, checked once per file and command: one
-    line saying what is wrong, or None.
+    line saying what is wrong, or None (also for a file whose end is cut off or damaged: its
+    indexes cannot be trusted, and `trailer_problem` speaks for it).
 
     A chunk header or message index that does not match the summary is one warning line: no
     tiplog reader uses them (each chunk is found through the summary and checked by its CRC),
@@ -162,7 +163,7 @@ def records_note(p: Path) -> str | None:
     a chunk's (None: the read says where, as before), a metadata record that no longer parses
     (a line saying where), or a change inside a record with no CRC that keeps its length, such
     as a digit of the calibration (a line: its metadata cannot be trusted)."""
-    if p in _checked:
+    if p in _checked or not mcap_salvage.ends_in_order(p) or mcap_salvage.trailer_problem(p):
         return None
     try:
         with open(p, "rb") as f:

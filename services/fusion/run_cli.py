@@ -19,7 +19,7 @@ from services.fusion.params import Params, ParamsError, mode_name, parse_sensors
 from services.fusion.runner import FusionRunner
 from tiplog import topics
 from tiplog.calibration import Calibration, CalibrationError
-from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary, topic_span
+from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary, topic_spans
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 log = logging.getLogger("tiplog.fusion")
@@ -97,14 +97,15 @@ def check_streams(src: Path, sensors: frozenset[str], announced: dict[str, float
         raise UserError(f"{src}: recording too short ({span_s:.2f} s)")
     use = {"device/gyro", "device/accel"} | ({"device/tof"} if "tof" in sensors else set())
     use |= {"vision/observation"} if "vision" in sensors else set()
+    # each stream's rate over its own span: a recording started before the device (a recorder
+    # that waits for the bench, a module plugged in later) holds other topics before it
+    spans = topic_spans(src, sorted(t for t in use if counts.get(t, 0)))
     for t in sorted(use):
         if counts.get(t, 0) == 0:
             if t != "device/gyro":
                 log.warning("%s: no %s messages; running without them", src, t)
             continue
-        # over the stream's own span: a recording started before the device (a recorder that
-        # waits for the bench, a module plugged in later) holds other topics before it
-        first, last = topic_span(src, t) or (0, 0)
+        first, last = spans.get(t, (0, 0))
         rate = (counts[t] - 1) / ((last - first) * 1e-9) if last > first else 0.0
         nominal = announced.get(t, NOMINAL_HZ[t])
         high = float("inf") if t == "vision/observation" else nominal / RATE_TOLERANCE  # a faster camera is fine

@@ -125,13 +125,6 @@ def format_status(st, headline: str = "") -> str:  # type: ignore[no-untyped-def
     return "\n".join(lines)
 
 
-def _ends_whole(path) -> bool:
-    """The file ends with its footer and a summary that passes its CRC (its indexes usable)."""
-    from tiplog import mcap_salvage
-
-    return mcap_salvage.ends_in_order(path) and not mcap_salvage.trailer_problem(path)
-
-
 def _recover(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -139,7 +132,7 @@ def _recover(args: argparse.Namespace) -> int:
     from tiplog.userio import UserError, atomic_output, input_mcap, records_note
 
     src = input_mcap(args.file, allow_truncated=True, check_records=False)  # copied as it is
-    changed = records_note(src) if src.stat().st_size and _ends_whole(src) else None
+    changed = records_note(src)
     out = Path(args.out) if args.out else src.with_suffix(".recovered.mcap")
     if out.exists() and out.resolve() == src.resolve():
         raise UserError(f"{out}: --out must differ from the file being recovered")
