@@ -114,7 +114,6 @@ class TrackingFilter:
         self.q_ba = p.accel_bias_rw_mps2_rts**2
         self.q_brho = (p.tof_offset_rw_mm_rts * 1e-3) ** 2
         self.rcm_var = (p.rcm_sigma_mm * 1e-3) ** 2
-        self._rcm_r = np.full(2, self.rcm_var)
         self._tof_r = np.array([(p.tof_sigma_mm * 1e-3) ** 2])
         self._tof_r_held = np.array([(p.tof_sigma_held_mm * 1e-3) ** 2])
         self.plane_var = (p.vision_plane_sigma_deg * DEG) ** 2
@@ -137,8 +136,15 @@ class TrackingFilter:
         self._map_settle_ns = p.tof_map_settle_ms * 1e6
         self._tof_fresh_ns = 100e6  # the ToF range a junction is checked against: at most this old
         self._imu_gap_s = p.imu_gap_ms * 1e-3
-        self._alpha_min_span_s = p.alpha_min_span_ms * 1e-3
         self._max_speed2 = p.max_speed_mps**2
+        self._gyro_k = np.array([
+            p.gyro_bias_rw_dps_rts * DEG, p.gyro_bias_rw_dps_rts_per_radps * DEG, self._imu_gap_s,
+            p.no_imu_accel_rw_mps2_rts**2, self.rcm_var, p.gate_chi2_2,
+        ])  # fmt: skip
+        self._alpha_min_span_ns = p.alpha_min_span_ms * 1e6
+        # a gyro sample's propagation through `propagate` (the smoother records every step
+        # there), not inside the compiled gyro step: the same result, slower
+        self.propagate_apart = False
         self.tof_map = (
             TofMap(
                 p.tof_map_sigma_deg,
@@ -235,22 +241,42 @@ class TrackingFilter:
             s.P[IV, IV] += np.eye(3) * (prm.no_imu_accel_rw_mps2_rts**2 * (dt - self._imu_gap_s))
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
-        self.propagate(s, t_ns)
+        """Propagate to t_ns with the held samples, take the new rate (and the angular
+        acceleration over the last `alpha_window` samples), and every `rcm_every`-th sample the
+        RCM update (the shaft line through the registered RCM, (R^T (r - p))_xy = 0, 2-D): one
+        compiled call (`kernels.gyro_step`), the same maths as `propagate` and `_update`."""
+        if self.propagate_apart:
+            self.propagate(s, t_ns)
+            dt = 0.0
+        else:
+            dt = (t_ns - s.t_ns) * 1e-9
+            if dt > 0.0:
+                s.t_ns = int(t_ns)
+        free = self.brho_free(s)
+        w = w_old = s.w_imu
+        dt_alpha = -1.0  # alpha unchanged until the window is full
         if self.imu:
             w = np.asarray(w_imu, float)
             s.w_prev.append((int(t_ns), w))
-            k = self.prm.alpha_window
-            if len(s.w_prev) > k:
-                t0, w0 = s.w_prev.pop(0)
-                dt = (t_ns - t0) * 1e-9
-                if dt >= self._alpha_min_span_s:
-                    s.alpha_tool = self.R_ti @ ((w - w0) / dt)
-                else:  # stamps bunched by a stalled host: no angular acceleration from them
-                    s.alpha_tool = np.zeros(3)
-            s.w_imu = w
+            if len(s.w_prev) > self.prm.alpha_window:
+                t0, w_old = s.w_prev.pop(0)
+                span = t_ns - t0
+                # stamps bunched by a stalled host: no angular acceleration from them
+                dt_alpha = span * 1e-9 if span >= self._alpha_min_span_ns else 0.0
         s.gyro_n += 1
-        if s.gyro_n % self.prm.rcm_every == 0:
-            self.update_rcm(s)
+        do_rcm = s.gyro_n % self.prm.rcm_every == 0
+        status, nis, dbrho = kernels.gyro_step(
+            s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
+            self._Q if free else self._Q_held, self._gyro_k, dt, self.imu, w, w_old, dt_alpha, self.rcm, do_rcm,
+            not free,
+        )  # fmt: skip
+        s.w_imu = w
+        if status == 0:
+            s.counts["updates:rcm"] = s.counts.get("updates:rcm", 0) + 1
+            s.nis["rcm"] = s.nis.get("rcm", 0) + nis
+            s.brho += dbrho
+        elif status == 1:
+            s.counts["rejected:rcm:innovation"] = s.counts.get("rejected:rcm:innovation", 0) + 1
         if not self.vision:
             self._clamp_depth(s)
 
@@ -282,11 +308,6 @@ class TrackingFilter:
         _bump(s.nis, name, nis)
         s.brho += kernels.inject(s.p, s.v, s.R, s.bg, s.ba, dx)
         return True
-
-    def update_rcm(self, s: State) -> bool:
-        """The shaft line through the registered RCM: (R^T (r - p))_xy = 0, 2-D."""
-        H, y = kernels.rcm_jacobian(s.R, s.p, self.rcm)
-        return self._update(s, H, y, self._rcm_r, self.prm.gate_chi2_2, "rcm")
 
     def update_gravity(self, s: State) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and

@@ -1,7 +1,9 @@
-"""The filter's two hot loops compiled with numba: one propagation step (nominal state and
-covariance) and one Kalman update. Pure numpy could not reach the offline speed target
-(a 120 s block in 2.4 s on one core, with every late vision frame re-propagated): each step
-is a handful of 16x16 products that numpy dispatches one call at a time. numba comes with the
+"""The filter's hot loops compiled with numba: one propagation step (nominal state and
+covariance), one Kalman update, and everything a gyro sample does in one call (`gyro_step`).
+Pure numpy could not reach the offline speed target (a 120 s block in 2.4 s on one core, with
+every late vision frame re-propagated): each step is a handful of 16x16 products that numpy
+dispatches one call at a time. Small products are written out: numba would hand them to BLAS
+and LAPACK, whose calls cost more than the arithmetic at 3x3 and m <= 4. numba comes with the
 `fast` extra (`pip install tiplog[fast]`). The tests check
 both against plain numpy (F P F^T + Q, the textbook update).
 
@@ -66,6 +68,35 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A (3, 3) @ x (3,) written out: numba hands `@` to BLAS, whose call costs more than the
+    product at this size."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = A[i, 0] * x[0] + A[i, 1] * x[1] + A[i, 2] * x[2]
+    return out
+
+
+@njit(cache=True)
+def _mtv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A.T (3, 3) @ x (3,) written out."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = A[0, i] * x[0] + A[1, i] * x[1] + A[2, i] * x[2]
+    return out
+
+
+@njit(cache=True)
+def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A (3, 3) @ B (3, 3) written out."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+    return out
+
+
+@njit(cache=True)
 def propagate(
     p: np.ndarray,
     v: np.ndarray,
@@ -93,26 +124,26 @@ def propagate(
     F_thbg = np.zeros((3, 3))
     qq = q.copy()
     if imu:
-        w_tool = R_ti @ (w_imu - bg)
-        f_tool = R_ti @ (f_imu - ba)
-        r = R @ r_lever_tool
-        w_b = R @ w_tool
-        a = R @ f_tool + _cross(R @ alpha_tool, r) + _cross(w_b, _cross(w_b, r))
+        w_tool = _mv(R_ti, w_imu - bg)
+        f_tool = _mv(R_ti, f_imu - ba)
+        r = _mv(R, r_lever_tool)
+        w_b = _mv(R, w_tool)
+        a = _mv(R, f_tool) + _cross(_mv(R, alpha_tool), r) + _cross(w_b, _cross(w_b, r))
         a[2] -= 9.80665
         wn = math.sqrt(w_tool[0] ** 2 + w_tool[1] ** 2 + w_tool[2] ** 2)
         # F_vth = -R [f_tool]x dt
         sk = np.zeros((3, 3))
         sk[0, 1], sk[0, 2], sk[1, 0] = -f_tool[2], f_tool[1], f_tool[2]
         sk[1, 2], sk[2, 0], sk[2, 1] = -f_tool[0], -f_tool[1], f_tool[0]
-        F_vth = -(R @ sk) * dt
-        F_vba = -(R @ R_ti) * dt
+        F_vth = _mm(R, sk) * -dt
+        F_vba = _mm(R, R_ti) * -dt
         _exp(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, F_thth)
-        F_thbg = -R_ti * dt
+        F_thbg = R_ti * -dt
         s = bg_rw_static + bg_rw_per_radps * wn
         qq[9] = qq[10] = qq[11] = s * s
         dR = np.empty((3, 3))
         _exp(w_tool[0] * dt, w_tool[1] * dt, w_tool[2] * dt, dR)
-        R[:, :] = R @ dR
+        R[:, :] = _mm(R, dR)
     else:
         a = np.zeros(3)
     for i in range(3):
@@ -154,31 +185,105 @@ def update(
 ) -> tuple[int, float, np.ndarray]:
     """Kalman update of P (16, 16) in place with H (m, 16), innovation y (m,), measurement
     variances r_var (m,). Returns (status, NIS, dx): status 0 applied, 1 rejected by the
-    chi-square gate. With freeze_last the last error state (b_rho) gets no gain
-    (Joseph form keeps P consistent)."""
+    chi-square gate (or an innovation covariance that is not positive definite). With
+    freeze_last the last error state (b_rho) gets no gain, and P follows the Joseph form for
+    that gain, expanded: P - K H P - P H^T K^T + K S K^T. Written out in loops (S by
+    Cholesky): at m <= 4 the BLAS and LAPACK calls cost more than the arithmetic."""
     m = y.shape[0]
-    PHt = P @ H.T
-    S = H @ PHt
-    for i in range(m):
-        S[i, i] += r_var[i]
-    Sinv = np.linalg.inv(S)
-    nis = y @ (Sinv @ y)
+    PHt = np.zeros((N, m))
+    for a in range(m):
+        for j in range(N):
+            h = H[a, j]
+            if h != 0.0:
+                for i in range(N):
+                    PHt[i, a] += P[i, j] * h
+    S = np.empty((m, m))
+    for a in range(m):
+        for b in range(m):
+            acc = 0.0
+            for j in range(N):
+                acc += H[a, j] * PHt[j, b]
+            S[a, b] = acc
+    for a in range(m):
+        S[a, a] += r_var[a]
+    # Cholesky S = L L^T (S symmetrised by reading its lower triangle)
+    L = np.zeros((m, m))
+    for a in range(m):
+        for b in range(a + 1):
+            acc = 0.5 * (S[a, b] + S[b, a])
+            for c in range(b):
+                acc -= L[a, c] * L[b, c]
+            if a == b:
+                if not acc > 0.0:
+                    return 1, math.inf, np.zeros(N)
+                L[a, a] = math.sqrt(acc)
+            else:
+                L[a, b] = acc / L[b, b]
+    # Sinv = L^-T L^-1 from the inverse of L
+    Li = np.zeros((m, m))
+    for a in range(m):
+        Li[a, a] = 1.0 / L[a, a]
+        for b in range(a):
+            acc = 0.0
+            for c in range(b, a):
+                acc -= L[a, c] * Li[c, b]
+            Li[a, b] = acc / L[a, a]
+    Sinv = np.empty((m, m))
+    for a in range(m):
+        for b in range(m):
+            acc = 0.0
+            for c in range(max(a, b), m):
+                acc += Li[c, a] * Li[c, b]
+            Sinv[a, b] = acc
+    nis = 0.0
+    for a in range(m):
+        for b in range(m):
+            nis += y[a] * Sinv[a, b] * y[b]
     if not nis <= chi2:
         return 1, nis, np.zeros(N)
-    K = PHt @ Sinv
-    if freeze_last:
-        K[N - 1, :] = 0.0
-        IKH = np.eye(N) - K @ H
-        KR = K.copy()
-        for i in range(m):
-            KR[:, i] *= r_var[i]
-        Pn = IKH @ P @ IKH.T + KR @ K.T
-    else:
-        Pn = P - K @ PHt.T
+    K = np.zeros((N, m))
     for i in range(N):
-        for j in range(N):
-            P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
-    return 0, nis, K @ y
+        for b in range(m):
+            acc = 0.0
+            for a in range(m):
+                acc += PHt[i, a] * Sinv[a, b]
+            K[i, b] = acc
+    if freeze_last:
+        for b in range(m):
+            K[N - 1, b] = 0.0
+        KS = np.zeros((N, m))
+        for i in range(N):
+            for b in range(m):
+                acc = 0.0
+                for a in range(m):
+                    acc += K[i, a] * S[a, b]
+                KS[i, b] = acc
+        for i in range(N):
+            for j in range(i, N):
+                acc = 0.0
+                for a in range(m):
+                    acc += KS[i, a] * K[j, a] - K[i, a] * PHt[j, a] - PHt[i, a] * K[j, a]
+                v = 0.5 * (P[i, j] + P[j, i]) + acc
+                P[i, j] = v
+                P[j, i] = v
+    else:
+        for i in range(N):
+            for j in range(i, N):
+                a1 = 0.0
+                a2 = 0.0
+                for a in range(m):
+                    a1 += K[i, a] * PHt[j, a]
+                    a2 += K[j, a] * PHt[i, a]
+                v = 0.5 * ((P[i, j] - a1) + (P[j, i] - a2))
+                P[i, j] = v
+                P[j, i] = v
+    dx = np.zeros(N)
+    for i in range(N):
+        acc = 0.0
+        for a in range(m):
+            acc += K[i, a] * y[a]
+        dx[i] = acc
+    return 0, nis, dx
 
 
 @njit(cache=True)
@@ -186,7 +291,7 @@ def inject(p: np.ndarray, v: np.ndarray, R: np.ndarray, bg: np.ndarray, ba: np.n
     """Error state dx (16,) into the nominal state, in place; returns the b_rho increment."""
     dR = np.empty((3, 3))
     _exp(dx[6], dx[7], dx[8], dR)
-    R[:, :] = R @ dR
+    R[:, :] = _mm(R, dR)
     for i in range(3):
         p[i] += dx[i]
         v[i] += dx[3 + i]
@@ -196,9 +301,48 @@ def inject(p: np.ndarray, v: np.ndarray, R: np.ndarray, bg: np.ndarray, ba: np.n
 
 
 @njit(cache=True)
+def gyro_step(
+    p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
+    w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
+    q: np.ndarray, k: np.ndarray, dt: float, imu: bool, w_new: np.ndarray, w_old: np.ndarray, dt_alpha: float,
+    rcm: np.ndarray, do_rcm: bool, freeze_last: bool,
+) -> tuple[int, float, float]:  # fmt: skip
+    """Everything one gyro sample does, in one call (the filter's per-sample Python overhead was
+    half its time): `propagate` over dt with the held samples (w_held, f_imu, alpha_tool); past
+    k[2] seconds without an IMU sample the velocity gets k[3] [m^2/s^3] per further second; the
+    angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
+    unchanged when negative); then, if do_rcm, the RCM update with variance k[4] per axis and
+    chi-square gate k[5]. k = [bg_rw_static, bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var,
+    chi2]. Returns (status, NIS, b_rho increment), status -1 when no RCM update was made, else
+    as `update`."""
+    if dt > 0.0:
+        propagate(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[0], k[1], dt, imu)
+        if imu and dt > k[2]:
+            for i in range(3, 6):
+                P[i, i] += k[3] * (dt - k[2])
+    if imu and dt_alpha >= 0.0:
+        if dt_alpha > 0.0:
+            a = _mv(R_ti, (w_new - w_old) / dt_alpha)
+            for i in range(3):
+                alpha_tool[i] = a[i]
+        else:
+            for i in range(3):
+                alpha_tool[i] = 0.0
+    if not do_rcm:
+        return -1, 0.0, 0.0
+    H, y = rcm_jacobian(R, p, rcm)
+    r_var = np.empty(2)
+    r_var[0] = r_var[1] = k[4]
+    status, nis, dx = update(P, H, y, r_var, k[5], freeze_last)
+    if status:
+        return status, nis, 0.0
+    return 0, nis, inject(p, v, R, bg, ba, dx)
+
+
+@njit(cache=True)
 def rcm_jacobian(R: np.ndarray, p: np.ndarray, rcm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(H (2, 16), y (2,)) of the RCM pseudo-measurement (R^T (r - p))_xy = 0."""
-    d = R.T @ (rcm - p)
+    d = _mtv(R, rcm - p)
     H = np.zeros((2, N))
     for i in range(2):
         for j in range(3):
@@ -216,14 +360,14 @@ def tof_jacobian(
     R: np.ndarray, p: np.ndarray, brho: float, m: np.ndarray, h: float, o: np.ndarray, b: np.ndarray
 ) -> tuple[np.ndarray, float, float]:
     """(H (1, 16), predicted range [m], m.(R b)) of rho = (h - m.(p + R o)) / (m.(R b)) + b_rho."""
-    Ro = R @ o
-    Rb = R @ b
+    Ro = _mv(R, o)
+    Rb = _mv(R, b)
     den = m[0] * Rb[0] + m[1] * Rb[1] + m[2] * Rb[2]
     H = np.zeros((1, N))
     if den < 1e-9:
         return H, 0.0, den
     num = h - (m[0] * (p[0] + Ro[0]) + m[1] * (p[1] + Ro[1]) + m[2] * (p[2] + Ro[2]))
-    mR = m @ R
+    mR = _mtv(R, m)
     # mR @ skew(o) and mR @ skew(b)
     so = np.array([mR[1] * o[2] - mR[2] * o[1], mR[2] * o[0] - mR[0] * o[2], mR[0] * o[1] - mR[1] * o[0]])
     sb = np.array([mR[1] * b[2] - mR[2] * b[1], mR[2] * b[0] - mR[0] * b[2], mR[0] * b[1] - mR[1] * b[0]])

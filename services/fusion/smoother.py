@@ -66,6 +66,7 @@ def smooth(calib: Calibration, params: Params, msgs, sensors: frozenset[str] = S
             rec.gain.append(np.zeros_like(F))
 
     filt.propagate = propagate  # the forward pass records every step
+    filt.propagate_apart = True
     gyro_nodes: list[int] = []
     track = runner._track
     for ev in events:
@@ -89,6 +90,7 @@ def smooth(calib: Calibration, params: Params, msgs, sensors: frozenset[str] = S
     if track.state is not None:
         rec.post.append((*_nominal(track.state), track.state.P.copy()))
     filt.propagate = original
+    filt.propagate_apart = False
     return _backward(rec, gyro_nodes, runner, calib)
 
 
