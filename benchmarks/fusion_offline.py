@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         _filter(msgs, calib)
         pr.disable()
         s = io.StringIO()
-        pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(14)
+        pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(int(os.environ.get("PROFILE_ROWS", "14")))
         print(s.getvalue())
     return 0
 

@@ -27,7 +27,6 @@ from services.fusion.params import SENSORS, Params
 from services.fusion.tof_map import TofMap
 from tiplog.calibration import Calibration
 
-G_BASE = np.array([0.0, 0.0, -9.80665])
 G = 9.80665
 N = 16
 IP, IV, ITH, IBG, IBA, IBR = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15), 15
@@ -136,10 +135,10 @@ class TrackingFilter:
         self._map_settle_ns = p.tof_map_settle_ms * 1e6
         self._tof_fresh_ns = 100e6  # the ToF range a junction is checked against: at most this old
         self._imu_gap_s = p.imu_gap_ms * 1e-3
-        self._max_speed2 = p.max_speed_mps**2
         self._gyro_k = np.array([
             p.gyro_bias_rw_dps_rts * DEG, p.gyro_bias_rw_dps_rts_per_radps * DEG, self._imu_gap_s,
-            p.no_imu_accel_rw_mps2_rts**2, self.rcm_var, p.gate_chi2_2,
+            p.no_imu_accel_rw_mps2_rts**2, self.rcm_var, p.gate_chi2_2, (p.max_position_sigma_mm * 1e-3) ** 2,
+            p.max_speed_mps**2,
         ])  # fmt: skip
         self._alpha_min_span_ns = p.alpha_min_span_ms * 1e6
         # a gyro sample's propagation through `propagate` (the smoother records every step
@@ -240,11 +239,12 @@ class TrackingFilter:
             # (held, a tool that was accelerating ran off at 0.25 m/s after a 0.7 s stall)
             s.P[IV, IV] += np.eye(3) * (prm.no_imu_accel_rw_mps2_rts**2 * (dt - self._imu_gap_s))
 
-    def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> None:
+    def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> str | None:
         """Propagate to t_ns with the held samples, take the new rate (and the angular
         acceleration over the last `alpha_window` samples), and every `rcm_every`-th sample the
         RCM update (the shaft line through the registered RCM, (R^T (r - p))_xy = 0, 2-D): one
-        compiled call (`kernels.gyro_step`), the same maths as `propagate` and `_update`."""
+        compiled call (`kernels.gyro_step`), the same maths as `propagate` and `_update`.
+        Returns why the state must be reset (`diverged`), or None."""
         if self.propagate_apart:
             self.propagate(s, t_ns)
             dt = 0.0
@@ -265,7 +265,7 @@ class TrackingFilter:
                 dt_alpha = span * 1e-9 if span >= self._alpha_min_span_ns else 0.0
         s.gyro_n += 1
         do_rcm = s.gyro_n % self.prm.rcm_every == 0
-        status, nis, dbrho = kernels.gyro_step(
+        status, nis, dbrho, health = kernels.gyro_step(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
             self._Q if free else self._Q_held, self._gyro_k, dt, self.imu, w, w_old, dt_alpha, self.rcm, do_rcm,
             not free,
@@ -279,6 +279,7 @@ class TrackingFilter:
             s.counts["rejected:rcm:innovation"] = s.counts.get("rejected:rcm:innovation", 0) + 1
         if not self.vision:
             self._clamp_depth(s)
+        return self._why(health, s)
 
     def on_accel(self, s: State, t_ns: int, f_imu: np.ndarray) -> None:
         """Hold the sample for propagation; a gravity update at gravity_rate_hz, applied at the
@@ -312,18 +313,10 @@ class TrackingFilter:
     def update_gravity(self, s: State) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and
         tangential terms (tip acceleration taken as zero), down-weighted as |f| leaves g."""
-        R = s.R
-        w_b = R @ (self.R_ti @ (s.w_imu - s.bg))
-        r = R @ self.r_imu_tip_tool
-        a_imu = -cross(R @ s.alpha_tool, r) - cross(w_b, cross(w_b, r))
-        w = R.T @ (a_imu - G_BASE)
-        f_pred = self.R_ti.T @ w + s.ba
+        H, y = kernels.gravity_jacobian(s.R, self.R_ti, self.r_imu_tip_tool, s.w_imu, s.bg, s.ba, s.alpha_tool, s.f_imu)
         excess = abs(math.sqrt(float(s.f_imu @ s.f_imu)) / G - 1.0)
         sig = (self.prm.gravity_sigma_deg + self.prm.gravity_sigma_per_excess * excess) * DEG * G
-        H = np.zeros((3, N))
-        H[:, ITH] = self.R_ti.T @ skew(w)
-        H[:, IBA] = np.eye(3)
-        return self._update(s, H, s.f_imu - f_pred, np.full(3, sig * sig), self.prm.gate_chi2_3, "gravity")
+        return self._update(s, H, y, np.full(3, sig * sig), self.prm.gate_chi2_3, "gravity")
 
     def update_tof(self, s: State, range_m: float) -> bool:
         """Raw range through the ray-plane model rho = (h - m.(p + R o)) / (m.(R b)) + b_rho;
@@ -481,12 +474,15 @@ class TrackingFilter:
 
     def diverged(self, s: State) -> str | None:
         """Why the state must be reset, or None."""
-        if not s.finite():
+        return self._why(kernels.health(s.p, s.v, s.R, s.P, self._gyro_k[6], self._gyro_k[7]), s)
+
+    def _why(self, health: int, s: State) -> str | None:
+        if health == 1:
             return "not_finite"
-        if float(s.P[0, 0] + s.P[1, 1] + s.P[2, 2]) > (self.prm.max_position_sigma_mm * 1e-3) ** 2:
+        if health == 2:
             return "covariance"
         if self.vision and s.vis_reject_run >= self.prm.reset_after_vision_rejections:
             return "innovation"
-        if float(s.v @ s.v) > self._max_speed2:
+        if health == 3:
             return "speed"
         return None

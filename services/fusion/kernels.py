@@ -306,15 +306,16 @@ def gyro_step(
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
     q: np.ndarray, k: np.ndarray, dt: float, imu: bool, w_new: np.ndarray, w_old: np.ndarray, dt_alpha: float,
     rcm: np.ndarray, do_rcm: bool, freeze_last: bool,
-) -> tuple[int, float, float]:  # fmt: skip
+) -> tuple[int, float, float, int]:  # fmt: skip
     """Everything one gyro sample does, in one call (the filter's per-sample Python overhead was
     half its time): `propagate` over dt with the held samples (w_held, f_imu, alpha_tool); past
     k[2] seconds without an IMU sample the velocity gets k[3] [m^2/s^3] per further second; the
     angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
     unchanged when negative); then, if do_rcm, the RCM update with variance k[4] per axis and
-    chi-square gate k[5]. k = [bg_rw_static, bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var,
-    chi2]. Returns (status, NIS, b_rho increment), status -1 when no RCM update was made, else
-    as `update`."""
+    chi-square gate k[5]; last, the state's `health` with k[6], k[7]. k = [bg_rw_static,
+    bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var, chi2, max_pos_var, max_speed2]. Returns
+    (status, NIS, b_rho increment, health), status -1 when no RCM update was made, else as
+    `update`."""
     if dt > 0.0:
         propagate(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[0], k[1], dt, imu)
         if imu and dt > k[2]:
@@ -328,15 +329,29 @@ def gyro_step(
         else:
             for i in range(3):
                 alpha_tool[i] = 0.0
-    if not do_rcm:
-        return -1, 0.0, 0.0
-    H, y = rcm_jacobian(R, p, rcm)
-    r_var = np.empty(2)
-    r_var[0] = r_var[1] = k[4]
-    status, nis, dx = update(P, H, y, r_var, k[5], freeze_last)
-    if status:
-        return status, nis, 0.0
-    return 0, nis, inject(p, v, R, bg, ba, dx)
+    status, nis, dbrho = -1, 0.0, 0.0
+    if do_rcm:
+        H, y = rcm_jacobian(R, p, rcm)
+        r_var = np.empty(2)
+        r_var[0] = r_var[1] = k[4]
+        status, nis, dx = update(P, H, y, r_var, k[5], freeze_last)
+        if status == 0:
+            dbrho = inject(p, v, R, bg, ba, dx)
+    return status, nis, dbrho, health(p, v, R, P, k[6], k[7])
+
+
+@njit(cache=True)
+def health(p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, max_pos_var: float, max_speed2: float) -> int:
+    """0 for a sound state; 1 when not finite (a NaN anywhere reaches the position block of P
+    within one step), 2 when the tip's variance (trace of the position block) exceeds
+    max_pos_var [m^2], 3 when the speed squared exceeds max_speed2 [m^2/s^2]."""
+    if not math.isfinite(p[0] + p[1] + p[2] + R[0, 0] + P[0, 0] + P[2, 2]):
+        return 1
+    if P[0, 0] + P[1, 1] + P[2, 2] > max_pos_var:
+        return 2
+    if v[0] * v[0] + v[1] * v[1] + v[2] * v[2] > max_speed2:
+        return 3
+    return 0
 
 
 @njit(cache=True)
@@ -353,6 +368,30 @@ def rcm_jacobian(R: np.ndarray, p: np.ndarray, rcm: np.ndarray) -> tuple[np.ndar
     y = np.empty(2)
     y[0], y[1] = -d[0], -d[1]
     return H, y
+
+
+@njit(cache=True)
+def gravity_jacobian(
+    R: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray, w_imu: np.ndarray,
+    bg: np.ndarray, ba: np.ndarray, alpha_tool: np.ndarray, f_imu: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(H (3, 16), y (3,)) of the gravity update: the specific force at the IMU predicted as
+    gravity plus the lever arm's tangential and centripetal terms (tip acceleration zero),
+    f = R_ti^T R^T (a_imu - g) + b_a."""
+    w_b = _mv(R, _mv(R_ti, w_imu - bg))
+    r = _mv(R, r_lever_tool)
+    a_imu = -_cross(_mv(R, alpha_tool), r) - _cross(w_b, _cross(w_b, r))
+    a_imu[2] += 9.80665
+    w = _mtv(R, a_imu)
+    f_pred = _mtv(R_ti, w) + ba
+    H = np.zeros((3, N))
+    # R_ti^T skew(w)
+    for i in range(3):
+        H[i, 6] = R_ti[1, i] * w[2] - R_ti[2, i] * w[1]
+        H[i, 7] = R_ti[2, i] * w[0] - R_ti[0, i] * w[2]
+        H[i, 8] = R_ti[0, i] * w[1] - R_ti[1, i] * w[0]
+        H[i, 12 + i] = 1.0
+    return H, f_imu - f_pred
 
 
 @njit(cache=True)
@@ -380,11 +419,15 @@ def tof_jacobian(
 
 
 @njit(cache=True)
-def sample_fields(R: np.ndarray, p: np.ndarray, rcm: np.ndarray, neutral: np.ndarray) -> np.ndarray:
-    """(qw, qx, qy, qz, depth [m], tilt [deg], roll [deg]) of a state: Shepperd's quaternion
-    (w >= 0), depth along the shaft from the RCM, tilt from `neutral`, roll of tool x about
-    the shaft from the horizontal."""
-    out = np.empty(7)
+def sample_fields(R: np.ndarray, p: np.ndarray, P: np.ndarray, rcm: np.ndarray, neutral: np.ndarray) -> np.ndarray:
+    """(qw, qx, qy, qz, depth [m], tilt [deg], roll [deg], sigma_x, sigma_y, sigma_z [m],
+    attitude sigma [deg]) of a state: Shepperd's quaternion (w >= 0), depth along the shaft
+    from the RCM, tilt from `neutral`, roll of tool x about the shaft from the horizontal, the
+    tip's 1-sigma along the base axes and the root of the attitude covariance's trace."""
+    out = np.empty(11)
+    for i in range(3):
+        out[7 + i] = math.sqrt(max(P[i, i], 0.0))
+    out[10] = math.degrees(math.sqrt(max(P[6, 6] + P[7, 7] + P[8, 8], 0.0)))
     m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
     tr = m00 + m11 + m22
     if tr > 0:

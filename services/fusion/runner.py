@@ -35,7 +35,11 @@ __all__ = ["ALL", "FusionRunner", "StateSample"]
 
 
 def _v3(v: Any) -> np.ndarray:
-    return np.array([v.x, v.y, v.z], dtype=float)
+    """A message's vector (3,); ValueError when any component is not finite (a corrupt message)."""
+    x, y, z = float(v.x), float(v.y), float(v.z)
+    if not math.isfinite(x + y + z):
+        raise ValueError("non-finite value")
+    return np.array((x, y, z))
 
 
 class _Track:
@@ -172,9 +176,6 @@ class FusionRunner:
             t = msg.header.stamp_ns - self.lat["camera"]
         else:
             return None
-        vals = payload if not isinstance(payload, dict) else np.concatenate([payload["n_left"], payload["n_right"]])
-        if not math.isfinite(float(np.sum(vals))):
-            raise ValueError("non-finite value")
         self._seq += 1
         return ((int(t), KIND_ORDER[kind], self._seq), kind, payload)
 
@@ -311,8 +312,7 @@ class FusionRunner:
         f = self.filt
         if kind == "gyro":
             if s is not None:
-                f.on_gyro(s, t, payload)
-                why = f.diverged(s)
+                why = f.on_gyro(s, t, payload)
                 if why is not None:
                     if f.tof_map is not None:  # what it learnt since the last vision tip came from a state going wrong
                         f.tof_map.forget_after(s.last_tip_ns)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,22 +32,21 @@ class StateSample:
 
 
 def make_sample(s: State, rcm_base_m: np.ndarray, neutral_u: np.ndarray, lock_ns: int) -> StateSample:
-    f = kernels.sample_fields(s.R, s.p, rcm_base_m, neutral_u)
-    d = np.diag(s.P)
+    f = kernels.sample_fields(s.R, s.p, s.P, rcm_base_m, neutral_u).tolist()
     return StateSample(
         stamp_ns=int(s.t_ns),
         p_tip_base_m=s.p.copy(),
         v_tip_base_mps=s.v.copy(),
-        q_base_tool=f[0:4],
+        q_base_tool=np.array(f[0:4]),
         u_base=s.R[:, 2].copy(),
-        depth_m=float(f[4]),
-        tilt_deg=float(f[5]),
-        roll_deg=float(f[6]),
+        depth_m=f[4],
+        tilt_deg=f[5],
+        roll_deg=f[6],
         gyro_bias_radps=s.bg.copy(),
         accel_bias_mps2=s.ba.copy(),
         tof_offset_m=float(s.brho),
-        tip_sigma_m=np.sqrt(np.maximum(d[0:3], 0.0)),
-        attitude_sigma_deg=math.degrees(math.sqrt(max(float(d[6] + d[7] + d[8]), 0.0))),
+        tip_sigma_m=np.array(f[7:10]),
+        attitude_sigma_deg=f[10],
         vision_locked=(s.t_ns - s.last_vision_ns) <= lock_ns,
         last_vision_stamp_ns=int(max(s.last_vision_ns, 0)),
     )

@@ -93,6 +93,32 @@ def test_kernels_match_numpy():
     assert nis == pytest.approx(y @ np.linalg.solve(S, y))
 
 
+def test_gravity_jacobian_is_the_derivative_of_its_prediction():
+    """The gravity update's H against finite differences of its own innovation, in attitude
+    (tool coordinates, R Exp(dtheta)) and accelerometer bias, with a lever arm, a rate and an
+    angular acceleration (the centripetal and tangential terms)."""
+    rng = np.random.default_rng(5)
+    R, R_ti = so3_exp(rng.normal(size=3)), so3_exp(rng.normal(size=3))
+    lever, w, bg, ba, alpha = rng.normal(size=3) * 0.2, rng.normal(size=3), rng.normal(size=3) * 0.01, *(
+        rng.normal(size=3) * s for s in (0.05, 2.0)
+    )  # fmt: skip
+    f_meas = rng.normal(size=3) + np.array([0.0, 0.0, 9.8])
+    lever, w, alpha = np.zeros(3), bg, np.zeros(3)
+    H, y0 = kernels.gravity_jacobian(R, R_ti, lever, w, bg, ba, alpha, f_meas)
+    # at zero lever arm and rate the prediction is gravity in the IMU frame plus the bias
+    _, y_still = kernels.gravity_jacobian(R, R_ti, np.zeros(3), bg, bg, ba, np.zeros(3), f_meas)
+    np.testing.assert_allclose(f_meas - y_still, R_ti.T @ R.T @ (-G) + ba, atol=1e-12)
+    eps = 1e-6
+    for j in range(N):
+        d = np.zeros(N)
+        d[j] = eps
+        Rj = R @ so3_exp(d[6:9])
+        _, yj = kernels.gravity_jacobian(Rj, R_ti, lever, w, bg, ba + d[12:15], alpha, f_meas)
+        # the innovation falls by H dx
+        np.testing.assert_allclose((y0 - yj) / eps, H[:, j], atol=1e-5, err_msg=str(j))
+    assert np.abs(H[:, 6:9]).max() > 1.0 and np.array_equal(H[:, 12:15], np.eye(3))
+
+
 def test_the_compiled_gyro_step_equals_propagate_then_the_rcm_update():
     """`kernels.gyro_step` (propagation, angular acceleration and the RCM update in one call)
     against the same sample taken through `propagate` and `_update`, with a stall longer than

@@ -114,16 +114,24 @@ def test_too_old_frame_counted_and_dropped(session):
 def test_corrupt_and_non_finite_inputs_never_reach_the_output(session):
     msgs, calib, _ = session
     bad = []
+    n_bad = 0
     for k, (t, m, a) in enumerate(msgs):
         bad.append((t, m, a))
         if t == "device/gyro" and k % 97 == 0:
             nan = copy.deepcopy(m)
             nan.rate_radps.x = float("nan")
             bad.append((t, nan, a))
-        if t == "device/accel" and k % 89 == 0:
+        elif t == "device/accel" and k % 89 == 0:
             bad.append((t, object(), a))  # not a message at all
+        elif t == "vision/observation" and m.accepted and k % 7 == 0:
+            inf = copy.deepcopy(m)
+            inf.junction_ray.z = float("inf")  # every vector is checked, the junction ray too
+            bad.append((t, inf, a))
+        else:
+            continue
+        n_bad += 1
     out, r = _run(bad, calib)
-    assert r.diagnostics()["corrupt"] > 10
+    assert n_bad > 10 and r.diagnostics()["corrupt"] == n_bad
     p = _arrays(out)[1]
     assert len(p) > 1000 and np.isfinite(p).all()
 
