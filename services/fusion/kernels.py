@@ -377,13 +377,17 @@ def gravity_jacobian(
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """(H (3, 16), y (3,)) of the gravity update: the specific force at the IMU predicted as
     gravity plus the lever arm's tangential and centripetal terms (tip acceleration zero),
-    f = R_ti^T R^T (a_imu - g) + b_a."""
+    f = R_ti^T R^T (a_imu - g) + b_a. The lever-arm terms turn with the tool (they are fixed in
+    tool coordinates), so only gravity's share depends on the attitude error: H_theta =
+    R_ti^T [R^T (-g)]x."""
     w_b = _mv(R, _mv(R_ti, w_imu - bg))
     r = _mv(R, r_lever_tool)
     a_imu = -_cross(_mv(R, alpha_tool), r) - _cross(w_b, _cross(w_b, r))
     a_imu[2] += 9.80665
-    w = _mtv(R, a_imu)
-    f_pred = _mtv(R_ti, w) + ba
+    f_pred = _mtv(R_ti, _mtv(R, a_imu)) + ba
+    w = np.empty(3)  # R^T (-g): gravity's share, in tool coordinates
+    for i in range(3):
+        w[i] = 9.80665 * R[2, i]
     H = np.zeros((3, N))
     # R_ti^T skew(w)
     for i in range(3):

@@ -103,7 +103,6 @@ def test_gravity_jacobian_is_the_derivative_of_its_prediction():
         rng.normal(size=3) * s for s in (0.05, 2.0)
     )  # fmt: skip
     f_meas = rng.normal(size=3) + np.array([0.0, 0.0, 9.8])
-    lever, w, alpha = np.zeros(3), bg, np.zeros(3)
     H, y0 = kernels.gravity_jacobian(R, R_ti, lever, w, bg, ba, alpha, f_meas)
     # at zero lever arm and rate the prediction is gravity in the IMU frame plus the bias
     _, y_still = kernels.gravity_jacobian(R, R_ti, np.zeros(3), bg, bg, ba, np.zeros(3), f_meas)
