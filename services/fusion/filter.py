@@ -134,9 +134,8 @@ class TrackingFilter:
         self._brho_window_ns = p.tof_offset_window_ms * 1e6
         self._map_settle_ns = p.tof_map_settle_ms * 1e6
         self._tof_fresh_ns = 100e6  # the ToF range a junction is checked against: at most this old
-        self._imu_gap_s = p.imu_gap_ms * 1e-3
         self._gyro_k = np.array([
-            p.gyro_bias_rw_dps_rts * DEG, p.gyro_bias_rw_dps_rts_per_radps * DEG, self._imu_gap_s,
+            p.gyro_bias_rw_dps_rts * DEG, p.gyro_bias_rw_dps_rts_per_radps * DEG, p.imu_gap_ms * 1e-3,
             p.no_imu_accel_rw_mps2_rts**2, self.rcm_var, p.gate_chi2_2, (p.max_position_sigma_mm * 1e-3) ** 2,
             p.max_speed_mps**2,
         ])  # fmt: skip
@@ -227,17 +226,10 @@ class TrackingFilter:
         if dt <= 0.0:
             return
         s.t_ns = int(t_ns)
-        prm = self.prm
-        kernels.propagate(
+        kernels.propagate_held(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
-            self._Q if self.brho_free(s) else self._Q_held, prm.gyro_bias_rw_dps_rts * DEG,
-            prm.gyro_bias_rw_dps_rts_per_radps * DEG, dt, self.imu,
+            self._Q if self.brho_free(s) else self._Q_held, self._gyro_k, dt, self.imu,
         )  # fmt: skip
-        if self.imu and dt > self._imu_gap_s:
-            # no IMU sample for this long (a stalled host): the held specific force says little
-            # about the motion, so the velocity gets the uncertainty it has without an IMU
-            # (held, a tool that was accelerating ran off at 0.25 m/s after a 0.7 s stall)
-            s.P[IV, IV] += np.eye(3) * (prm.no_imu_accel_rw_mps2_rts**2 * (dt - self._imu_gap_s))
 
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> str | None:
         """Propagate to t_ns with the held samples, take the new rate (and the angular

@@ -180,6 +180,20 @@ def propagate(
 
 
 @njit(cache=True)
+def _matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A (n, k) @ B (k, m) written out, for the update's thin products (m <= 4)."""
+    n, k, m = A.shape[0], A.shape[1], B.shape[1]
+    out = np.empty((n, m))
+    for i in range(n):
+        for j in range(m):
+            acc = 0.0
+            for c in range(k):
+                acc += A[i, c] * B[c, j]
+            out[i, j] = acc
+    return out
+
+
+@njit(cache=True)
 def update(
     P: np.ndarray, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, freeze_last: bool
 ) -> tuple[int, float, np.ndarray]:
@@ -197,13 +211,7 @@ def update(
             if h != 0.0:
                 for i in range(N):
                     PHt[i, a] += P[i, j] * h
-    S = np.empty((m, m))
-    for a in range(m):
-        for b in range(m):
-            acc = 0.0
-            for j in range(N):
-                acc += H[a, j] * PHt[j, b]
-            S[a, b] = acc
+    S = _matmul(H, PHt)
     for a in range(m):
         S[a, a] += r_var[a]
     # Cholesky S = L L^T (S symmetrised by reading its lower triangle)
@@ -241,23 +249,11 @@ def update(
             nis += y[a] * Sinv[a, b] * y[b]
     if not nis <= chi2:
         return 1, nis, np.zeros(N)
-    K = np.zeros((N, m))
-    for i in range(N):
-        for b in range(m):
-            acc = 0.0
-            for a in range(m):
-                acc += PHt[i, a] * Sinv[a, b]
-            K[i, b] = acc
+    K = _matmul(PHt, Sinv)
     if freeze_last:
         for b in range(m):
             K[N - 1, b] = 0.0
-        KS = np.zeros((N, m))
-        for i in range(N):
-            for b in range(m):
-                acc = 0.0
-                for a in range(m):
-                    acc += K[i, a] * S[a, b]
-                KS[i, b] = acc
+        KS = _matmul(K, S)
         for i in range(N):
             for j in range(i, N):
                 acc = 0.0
@@ -301,6 +297,23 @@ def inject(p: np.ndarray, v: np.ndarray, R: np.ndarray, bg: np.ndarray, ba: np.n
 
 
 @njit(cache=True)
+def propagate_held(
+    p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
+    w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
+    q: np.ndarray, k: np.ndarray, dt: float, imu: bool,
+) -> None:  # fmt: skip
+    """`propagate` over dt with the latest samples held, k as in `gyro_step`. Past k[2] seconds
+    without an IMU sample (a stalled host) the held specific force says little about the
+    motion, so the velocity gets the uncertainty it has without an IMU, k[3] [m^2/s^3], for
+    every further second (held alone, a tool that was accelerating ran off at 0.25 m/s after
+    a 0.7 s stall)."""
+    propagate(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[0], k[1], dt, imu)
+    if imu and dt > k[2]:
+        for i in range(3, 6):
+            P[i, i] += k[3] * (dt - k[2])
+
+
+@njit(cache=True)
 def gyro_step(
     p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
@@ -308,19 +321,15 @@ def gyro_step(
     rcm: np.ndarray, do_rcm: bool, freeze_last: bool,
 ) -> tuple[int, float, float, int]:  # fmt: skip
     """Everything one gyro sample does, in one call (the filter's per-sample Python overhead was
-    half its time): `propagate` over dt with the held samples (w_held, f_imu, alpha_tool); past
-    k[2] seconds without an IMU sample the velocity gets k[3] [m^2/s^3] per further second; the
-    angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
+    half its time): `propagate_held` over dt with the held samples (w_held, f_imu, alpha_tool);
+    the angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
     unchanged when negative); then, if do_rcm, the RCM update with variance k[4] per axis and
     chi-square gate k[5]; last, the state's `health` with k[6], k[7]. k = [bg_rw_static,
     bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var, chi2, max_pos_var, max_speed2]. Returns
     (status, NIS, b_rho increment, health), status -1 when no RCM update was made, else as
     `update`."""
     if dt > 0.0:
-        propagate(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[0], k[1], dt, imu)
-        if imu and dt > k[2]:
-            for i in range(3, 6):
-                P[i, i] += k[3] * (dt - k[2])
+        propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, imu)
     if imu and dt_alpha >= 0.0:
         if dt_alpha > 0.0:
             a = _mv(R_ti, (w_new - w_old) / dt_alpha)
