@@ -93,6 +93,39 @@ def test_kernels_match_numpy():
     assert nis == pytest.approx(y @ np.linalg.solve(S, y))
 
 
+def test_a_stall_past_the_imu_gap_gives_the_velocity_its_no_imu_uncertainty():
+    """`propagate_held` (every propagation of the filter): past the IMU gap, the velocity's
+    variance grows by the no-IMU noise for each further second, on top of `propagate`; within
+    the gap, or without an IMU, it is `propagate` exactly."""
+    f = TrackingFilter(_calib(), Params())
+    k = f._gyro_k
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(N, N))
+    P0 = X @ X.T * 1e-4 + np.eye(N) * 1e-6
+    R0 = so3_exp(rng.normal(size=3))
+    args = [rng.normal(size=3) for _ in range(5)]  # bg, ba, w, f, alpha
+
+    def run(kernel, dt, imu):
+        P, R = P0.copy(), R0.copy()
+        p, v = np.zeros(3), np.zeros(3)
+        bg, ba, w, fi, alpha = (a.copy() for a in args)
+        if kernel is kernels.propagate:
+            kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k[0], k[1], dt, imu)
+        else:
+            kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k, dt, imu)
+        return P
+
+    gap = Params().imu_gap_ms * 1e-3
+    assert k[2] == pytest.approx(gap) and k[3] > 0
+    dt = gap + 0.3
+    added = run(kernels.propagate_held, dt, True) - run(kernels.propagate, dt, True)
+    np.testing.assert_allclose(np.diag(added)[3:6], k[3] * 0.3, rtol=1e-9)
+    added[3:6, 3:6] -= np.eye(3) * k[3] * 0.3
+    np.testing.assert_allclose(added, 0.0, atol=1e-15)
+    for step, imu in ((gap * 0.9, True), (dt, False)):
+        np.testing.assert_array_equal(run(kernels.propagate_held, step, imu), run(kernels.propagate, step, imu))
+
+
 def test_gravity_jacobian_is_the_derivative_of_its_prediction():
     """The gravity update's H against finite differences of its own innovation, in attitude
     (tool coordinates, R Exp(dtheta)) and accelerometer bias, with a lever arm, a rate and an
