@@ -80,8 +80,7 @@ class State:
         return s
 
     def finite(self) -> bool:
-        # a NaN anywhere reaches the position block of P within one step
-        return math.isfinite(self.p[0] + self.p[1] + self.p[2] + self.R[0, 0] + self.P[0, 0] + self.P[2, 2])
+        return kernels.finite(self.p, self.R, self.P)
 
 
 def _bump(d: dict, key: str, by: float = 1.0) -> None:

@@ -350,11 +350,17 @@ def gyro_step(
 
 
 @njit(cache=True)
+def finite(p: np.ndarray, R: np.ndarray, P: np.ndarray) -> bool:
+    """Whether a state is finite: a NaN anywhere reaches the position block of P within one step."""
+    return math.isfinite(p[0] + p[1] + p[2] + R[0, 0] + P[0, 0] + P[2, 2])
+
+
+@njit(cache=True)
 def health(p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, max_pos_var: float, max_speed2: float) -> int:
-    """0 for a sound state; 1 when not finite (a NaN anywhere reaches the position block of P
-    within one step), 2 when the tip's variance (trace of the position block) exceeds
-    max_pos_var [m^2], 3 when the speed squared exceeds max_speed2 [m^2/s^2]."""
-    if not math.isfinite(p[0] + p[1] + p[2] + R[0, 0] + P[0, 0] + P[2, 2]):
+    """0 for a sound state; 1 when not `finite`, 2 when the tip's variance (trace of the
+    position block) exceeds max_pos_var [m^2], 3 when the speed squared exceeds max_speed2
+    [m^2/s^2]."""
+    if not finite(p, R, P):
         return 1
     if P[0, 0] + P[1, 1] + P[2, 2] > max_pos_var:
         return 2
@@ -389,14 +395,12 @@ def gravity_jacobian(
     f = R_ti^T R^T (a_imu - g) + b_a. The lever-arm terms turn with the tool (they are fixed in
     tool coordinates), so only gravity's share depends on the attitude error: H_theta =
     R_ti^T [R^T (-g)]x."""
-    w_b = _mv(R, _mv(R_ti, w_imu - bg))
-    r = _mv(R, r_lever_tool)
-    a_imu = -_cross(_mv(R, alpha_tool), r) - _cross(w_b, _cross(w_b, r))
-    a_imu[2] += 9.80665
-    f_pred = _mtv(R_ti, _mtv(R, a_imu)) + ba
+    w_t = _mv(R_ti, w_imu - bg)
+    a_t = -_cross(alpha_tool, r_lever_tool) - _cross(w_t, _cross(w_t, r_lever_tool))  # tool coordinates
     w = np.empty(3)  # R^T (-g): gravity's share, in tool coordinates
     for i in range(3):
         w[i] = 9.80665 * R[2, i]
+    f_pred = _mtv(R_ti, a_t + w) + ba
     H = np.zeros((3, N))
     # R_ti^T skew(w)
     for i in range(3):

@@ -132,9 +132,11 @@ def test_gravity_jacobian_is_the_derivative_of_its_prediction():
     angular acceleration (the centripetal and tangential terms)."""
     rng = np.random.default_rng(5)
     R, R_ti = so3_exp(rng.normal(size=3)), so3_exp(rng.normal(size=3))
-    lever, w, bg, ba, alpha = rng.normal(size=3) * 0.2, rng.normal(size=3), rng.normal(size=3) * 0.01, *(
-        rng.normal(size=3) * s for s in (0.05, 2.0)
-    )  # fmt: skip
+    lever = rng.normal(size=3) * 0.2
+    w = rng.normal(size=3)
+    bg = rng.normal(size=3) * 0.01
+    ba = rng.normal(size=3) * 0.05
+    alpha = rng.normal(size=3) * 2.0
     f_meas = rng.normal(size=3) + np.array([0.0, 0.0, 9.8])
     H, y0 = kernels.gravity_jacobian(R, R_ti, lever, w, bg, ba, alpha, f_meas)
     # at zero lever arm and rate the prediction is gravity in the IMU frame plus the bias
@@ -159,7 +161,6 @@ def test_the_compiled_gyro_step_equals_propagate_then_the_rcm_update():
     c = _calib()
     R, p = _pose()
     f_true = c.R_tool_imu.T @ R.T @ (-G)
-    rng = np.random.default_rng(3)
     states = []
     for apart in (False, True):
         f = TrackingFilter(c, Params())
