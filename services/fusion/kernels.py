@@ -126,15 +126,16 @@ def propagate(
     if imu:
         w_tool = _mv(R_ti, w_imu - bg)
         f_tool = _mv(R_ti, f_imu - ba)
-        r = _mv(R, r_lever_tool)
-        w_b = _mv(R, w_tool)
-        a = _mv(R, f_tool) + _cross(_mv(R, alpha_tool), r) + _cross(w_b, _cross(w_b, r))
+        # the tip's acceleration in tool coordinates, where the lever arm's terms are fixed
+        a_tool = f_tool + _cross(alpha_tool, r_lever_tool) + _cross(w_tool, _cross(w_tool, r_lever_tool))
+        a = _mv(R, a_tool)
         a[2] -= 9.80665
         wn = math.sqrt(w_tool[0] ** 2 + w_tool[1] ** 2 + w_tool[2] ** 2)
-        # F_vth = -R [f_tool]x dt
+        # F_vth = -R [a_tool]x dt: the lever arm's terms turn with the tool as the specific
+        # force does (they were left out, as if fixed in the base frame)
         sk = np.zeros((3, 3))
-        sk[0, 1], sk[0, 2], sk[1, 0] = -f_tool[2], f_tool[1], f_tool[2]
-        sk[1, 2], sk[2, 0], sk[2, 1] = -f_tool[0], -f_tool[1], f_tool[0]
+        sk[0, 1], sk[0, 2], sk[1, 0] = -a_tool[2], a_tool[1], a_tool[2]
+        sk[1, 2], sk[2, 0], sk[2, 1] = -a_tool[0], -a_tool[1], a_tool[0]
         F_vth = _mm(R, sk) * -dt
         F_vba = _mm(R, R_ti) * -dt
         _exp(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, F_thth)
@@ -154,23 +155,23 @@ def propagate(
     FP = P.copy()
     for j in range(N):
         for i in range(3):
-            FP[i, j] = P[i, j] + dt * P[3 + i, j]
             acc = P[3 + i, j]
             acc2 = 0.0
             for k in range(3):
                 acc += F_vth[i, k] * P[6 + k, j] + F_vba[i, k] * P[12 + k, j]
                 acc2 += F_thth[i, k] * P[6 + k, j] + F_thbg[i, k] * P[9 + k, j]
+            FP[i, j] = P[i, j] + 0.5 * dt * (P[3 + i, j] + acc)  # p += v dt + a dt^2 / 2
             FP[3 + i, j] = acc
             FP[6 + i, j] = acc2
     # P' = FP @ F^T by columns
     for i in range(N):
         for r_ in range(3):
-            P[i, r_] = FP[i, r_] + dt * FP[i, 3 + r_]
             acc = FP[i, 3 + r_]
             acc2 = 0.0
             for k in range(3):
                 acc += FP[i, 6 + k] * F_vth[r_, k] + FP[i, 12 + k] * F_vba[r_, k]
                 acc2 += FP[i, 6 + k] * F_thth[r_, k] + FP[i, 9 + k] * F_thbg[r_, k]
+            P[i, r_] = FP[i, r_] + 0.5 * dt * (FP[i, 3 + r_] + acc)
             P[i, 3 + r_] = acc
             P[i, 6 + r_] = acc2
         for c in range(9, N):
@@ -484,8 +485,8 @@ def sample_fields(R: np.ndarray, p: np.ndarray, P: np.ndarray, rcm: np.ndarray, 
 
 @njit(cache=True)
 def transition(
-    R: np.ndarray, bg: np.ndarray, ba: np.ndarray, w_imu: np.ndarray, f_imu: np.ndarray, R_ti: np.ndarray,
-    dt: float, imu: bool,
+    R: np.ndarray, bg: np.ndarray, ba: np.ndarray, w_imu: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray,
+    R_ti: np.ndarray, r_lever_tool: np.ndarray, dt: float, imu: bool,
 ) -> np.ndarray:  # fmt: skip
     """The error-state transition F (16, 16) that `propagate` applies for a step of dt [s]."""
     F = np.eye(N)
@@ -493,12 +494,14 @@ def transition(
         F[i, 3 + i] = dt
     if imu:
         w_tool = R_ti @ (w_imu - bg)
-        f_tool = R_ti @ (f_imu - ba)
+        a_tool = R_ti @ (f_imu - ba) + _cross(alpha_tool, r_lever_tool) + _cross(w_tool, _cross(w_tool, r_lever_tool))
         sk = np.zeros((3, 3))
-        sk[0, 1], sk[0, 2], sk[1, 0] = -f_tool[2], f_tool[1], f_tool[2]
-        sk[1, 2], sk[2, 0], sk[2, 1] = -f_tool[0], -f_tool[1], f_tool[0]
+        sk[0, 1], sk[0, 2], sk[1, 0] = -a_tool[2], a_tool[1], a_tool[2]
+        sk[1, 2], sk[2, 0], sk[2, 1] = -a_tool[0], -a_tool[1], a_tool[0]
         F[3:6, 6:9] = -(R @ sk) * dt
         F[3:6, 12:15] = -(R @ R_ti) * dt
+        F[0:3, 6:9] = F[3:6, 6:9] * (0.5 * dt)
+        F[0:3, 12:15] = F[3:6, 12:15] * (0.5 * dt)
         E = np.empty((3, 3))
         _exp(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, E)
         F[6:9, 6:9] = E

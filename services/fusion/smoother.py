@@ -55,7 +55,9 @@ def smooth(calib: Calibration, params: Params, msgs, sensors: frozenset[str] = S
         dt = (t_ns - s.t_ns) * 1e-9
         if dt <= 0.0:
             return
-        F = kernels.transition(s.R, s.bg, s.ba, s.w_imu, s.f_imu, filt.R_ti, dt, filt.imu)
+        F = kernels.transition(
+            s.R, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, filt.R_ti, filt.r_imu_tip_tool, dt, filt.imu
+        )
         P_post = s.P.copy()
         rec.post.append((*_nominal(s), P_post))
         original(s, t_ns)
