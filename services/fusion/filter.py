@@ -62,7 +62,7 @@ class State:
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
-        "t_init_ns", "tof_last",
+        "t_init_ns", "tof_last", "rest",
     )  # fmt: skip
 
     def copy(self) -> State:
@@ -74,6 +74,7 @@ class State:
         s.p, s.v, s.R, s.P = self.p.copy(), self.v.copy(), self.R.copy(), self.P.copy()
         s.bg, s.ba = self.bg.copy(), self.ba.copy()
         s.w_imu, s.f_imu, s.alpha_tool = self.w_imu.copy(), self.f_imu.copy(), self.alpha_tool.copy()
+        s.rest = self.rest.copy()
         s.w_prev = list(self.w_prev)
         s.counts = dict(self.counts)
         s.nis = dict(self.nis)
@@ -139,6 +140,13 @@ class TrackingFilter:
             p.max_speed_mps**2,
         ])  # fmt: skip
         self._alpha_min_span_ns = p.alpha_min_span_ms * 1e6
+        self.rest_on = self.imu and p.rest_bias
+        self._rest_k = np.array([
+            p.rest_tau_ms * 1e-3, (p.rest_th_gyro_dps * DEG) ** 2, p.rest_th_accel_mps2**2, p.rest_min_ms * 1e-3,
+            p.rest_chunk_ms * 1e-3, p.imu_gap_ms * 1e-3, (p.rest_agree_gyro_dps * DEG) ** 2, p.rest_agree_accel_mps2**2,
+        ])  # fmt: skip
+        # the chunk mean's variance: white rate noise over the chunk, plus the slack
+        self._rest_var = np.full(3, self.q_gyro / (p.rest_chunk_ms * 1e-3) + (p.rest_sigma_dps * DEG) ** 2)
         # a gyro sample's propagation through `propagate` (the smoother records every step
         # there), not inside the compiled gyro step: the same result, slower
         self.propagate_apart = False
@@ -178,6 +186,7 @@ class TrackingFilter:
         s.f_imu = np.zeros(3) if f_imu is None else np.asarray(f_imu, float).copy()
         s.w_prev = []
         s.alpha_tool = np.zeros(3)
+        s.rest = kernels.rest_init()
         s.gyro_n = 0
         s.last_grav_ns = -(1 << 62)
         s.last_tip_ns = -(1 << 62)
@@ -268,6 +277,8 @@ class TrackingFilter:
             s.brho += dbrho
         elif status == 1:
             s.counts["rejected:rcm:innovation"] = s.counts.get("rejected:rcm:innovation", 0) + 1
+        if self.rest_on and kernels.rest_sample(s.rest, w, t_ns * 1e-9, 0, self._rest_k):
+            self.update_rest(s)
         if not self.vision:
             self._clamp_depth(s)
         return self._why(health, s)
@@ -278,6 +289,8 @@ class TrackingFilter:
         if not self.imu:
             return
         s.f_imu = np.asarray(f_imu, float)
+        if self.rest_on:
+            kernels.rest_sample(s.rest, s.f_imu, t_ns * 1e-9, 1, self._rest_k)
         if self.grav_period_ns is not None and t_ns - s.last_grav_ns >= self.grav_period_ns:
             s.last_grav_ns = int(t_ns)
             self.propagate(s, t_ns)
@@ -308,6 +321,14 @@ class TrackingFilter:
         excess = abs(math.sqrt(float(s.f_imu @ s.f_imu)) / G - 1.0)
         sig = (self.prm.gravity_sigma_deg + self.prm.gravity_sigma_per_excess * excess) * DEG * G
         return self._update(s, H, y, np.full(3, sig * sig), self.prm.gate_chi2_3, "gravity")
+
+    def update_rest(self, s: State) -> bool:
+        """The tool at rest: the mean gyro rate over a chunk of rest (`kernels.rest_sample`)
+        is the bias, w = b_g. The gate turns away a slow steady turn taken for rest once the
+        bias is known better than that turn's rate."""
+        H = np.zeros((3, N))
+        H[0, 9] = H[1, 10] = H[2, 11] = 1.0
+        return self._update(s, H, s.rest[25:28] - s.bg, self._rest_var, self.prm.gate_chi2_3, "rest")
 
     def update_tof(self, s: State, range_m: float) -> bool:
         """Raw range through the ray-plane model rho = (h - m.(p + R o)) / (m.(R b)) + b_rho;

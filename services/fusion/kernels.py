@@ -370,6 +370,86 @@ def health(p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, max_pos_v
     return 0
 
 
+# The rest detector's state (`State.rest`): [0:3] low-passed gyro, [3:6] low-passed accel,
+# [6] [7] their last sample times, [8] since when every sample was near its low-pass (NaN:
+# moving), [9:12] [12:15] [15] [16] [17] the current chunk's gyro and accel sums, counts and
+# start, [18:21] [21:24] [24] the completed chunk's gyro and accel means (and whether there is
+# one), [25:28] the mean rate ready to apply.
+REST_SIZE = 28
+
+
+def rest_init() -> np.ndarray:
+    r = np.zeros(REST_SIZE)
+    r[6:9] = np.nan
+    return r
+
+
+@njit(cache=True)
+def _rest_break(rest: np.ndarray) -> None:
+    rest[8] = np.nan
+    rest[15] = rest[16] = 0.0
+    rest[24] = 0.0
+
+
+@njit(cache=True)
+def rest_sample(rest: np.ndarray, x: np.ndarray, t_s: float, accel: int, k: np.ndarray) -> bool:
+    """One gyro (accel=0, x in rad/s) or accelerometer (accel=1, m/s^2) sample through the rest
+    detector. First VQF's test: every sample of both within sqrt(k[1 + accel]) of its channel's
+    low-pass (time constant k[0] s) for k[3] s; a gap over k[5] s restarts the channel. Then
+    the samples are averaged in chunks of k[4] s, and a chunk is taken for rest only when the
+    next one agrees with it (gyro means within sqrt(k[6]), accel within sqrt(k[7])): a slow
+    smooth motion stays near its low-pass, but its mean rate or its gravity moves from chunk to
+    chunk. A chunk's mean rate is then released into rest[25:28] (True returned); any sample off
+    its low-pass drops the chunks not yet released, so none from a motion's onset is used."""
+    lp, it = 3 * accel, 6 + accel
+    t_last = rest[it]
+    rest[it] = t_s
+    if not t_s - t_last <= k[5]:  # the channel's first sample (NaN), or after a gap
+        for i in range(3):
+            rest[lp + i] = x[i]
+        _rest_break(rest)
+        return False
+    a = 1.0 - math.exp(-(t_s - t_last) / k[0])
+    d2 = 0.0
+    for i in range(3):
+        rest[lp + i] += a * (x[i] - rest[lp + i])
+        e = x[i] - rest[lp + i]
+        d2 += e * e
+    if d2 >= k[1 + accel]:
+        _rest_break(rest)
+        return False
+    if math.isnan(rest[8]):
+        rest[8] = t_s
+        return False
+    if t_s - rest[8] < k[3]:
+        return False
+    if rest[15] + rest[16] == 0.0:
+        rest[17] = t_s
+        for i in range(9, 15):
+            rest[i] = 0.0
+    for i in range(3):
+        rest[9 + 3 * accel + i] += x[i]
+    rest[15 + accel] += 1.0
+    if accel or t_s - rest[17] < k[4] or rest[16] == 0.0:
+        return False
+    g = np.empty(3)
+    f = np.empty(3)
+    dg = df = 0.0
+    for i in range(3):
+        g[i] = rest[9 + i] / rest[15]
+        f[i] = rest[12 + i] / rest[16]
+        dg += (g[i] - rest[18 + i]) ** 2
+        df += (f[i] - rest[21 + i]) ** 2
+    ready = rest[24] > 0.0 and dg < k[6] and df < k[7]
+    for i in range(3):
+        rest[25 + i] = rest[18 + i]
+        rest[18 + i] = g[i]
+        rest[21 + i] = f[i]
+    rest[24] = 1.0 if rest[24] == 0.0 or ready else 0.0  # a disagreeing pair: neither is rest
+    rest[15] = rest[16] = 0.0
+    return ready
+
+
 @njit(cache=True)
 def rcm_jacobian(R: np.ndarray, p: np.ndarray, rcm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(H (2, 16), y (2,)) of the RCM pseudo-measurement (R^T (r - p))_xy = 0."""

@@ -21,6 +21,7 @@ from tiplog.userio import read_yaml, yaml_number
 
 SENSORS = frozenset({"imu", "tof", "vision"})
 _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
+_POSITIVE = ("tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", "rest_tau_ms", "rest_chunk_ms", *_GATES)
 MAX_HISTORY_MS = 120_000.0  # the rewind history lives in memory: a snapshot per gyro sample
 
 
@@ -53,6 +54,19 @@ class Params:
     # for the gyro and accelerometer
     no_imu_rate_rw_dps_rts: float = 40.0
     no_imu_accel_rw_mps2_rts: float = 0.3
+    # rest: the gyro bias straight from the gyroscope while the tool is still (VQF's rest
+    # detection and thresholds, as `fusion attitude`). Without it only vision sees the bias's
+    # vertical component, and the bias walks in motion: without vision the heading drifts on
+    # with whatever bias the last motion left, even when the tool has come to rest
+    rest_bias: bool = True
+    rest_th_gyro_dps: float = 2.0  # every gyro sample within this of its low-pass ...
+    rest_th_accel_mps2: float = 0.5  # ... and every accelerometer sample within this of its own
+    rest_tau_ms: float = 500.0  # (their low-pass time constant)
+    rest_min_ms: float = 1500.0  # ... for this long: at rest
+    rest_chunk_ms: float = 500.0  # the mean rate over each chunk of rest measures the bias,
+    rest_agree_gyro_dps: float = 0.1  # once the next chunk's mean rate is within this of it
+    rest_agree_accel_mps2: float = 0.05  # and its mean specific force within this
+    rest_sigma_dps: float = 0.01  # added to the chunk mean's noise: motion below the thresholds
     # --- initial uncertainty ------------------------------------------------------------
     init_gyro_bias_dps: float = 0.05
     init_accel_bias_mps2: float = 0.002
@@ -141,7 +155,7 @@ class Params:
         for name in ("rcm_every", "alpha_window"):
             if getattr(self, name) < 1:
                 raise ParamsError(f"fusion parameter {name}: must be >= 1 (got {getattr(self, name)})")
-        for name in ("tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", *_GATES):
+        for name in _POSITIVE:
             if not getattr(self, name) > 0:
                 raise ParamsError(f"fusion parameter {name}: must be > 0 (got {getattr(self, name)})")
         if self.history_ms > MAX_HISTORY_MS:  # a snapshot per gyro sample is kept for that long

@@ -5,6 +5,7 @@ and the ToF offset held while vision is absent."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -247,7 +248,7 @@ def test_a_state_copy_carries_every_slot_and_shares_no_array():
     for name in State.__slots__:
         a, b = getattr(s, name), getattr(c, name)
         if isinstance(a, np.ndarray):
-            assert a is not b and np.array_equal(a, b), name
+            assert a is not b and np.array_equal(a, b, equal_nan=True), name
         else:
             assert a == b, name
             assert not isinstance(a, (list, dict)) or a is not b, name
@@ -438,3 +439,93 @@ def test_without_vision_the_tip_stays_at_a_physical_depth():
     s = fv.new_state(0, R, 0.9, f_true)
     fv.on_gyro(s, 5_000_000, np.zeros(3))
     assert "clamped:depth" not in s.counts
+
+
+def _still_imu(seconds: float, bias: np.ndarray, f_true: np.ndarray, seed: int = 2):
+    """(t_s, kind, sample) of a still IMU at 200 Hz gyro and 240 Hz accelerometer, with the
+    bench's white noise (0.2 deg/s and 0.07 m/s^2 per sample)."""
+    rng = np.random.default_rng(seed)
+    ev = [(k / 200.0, 0, bias + rng.normal(size=3) * math.radians(0.2)) for k in range(int(seconds * 200))]
+    ev += [(k / 240.0 + 1e-4, 1, f_true + rng.normal(size=3) * 0.07) for k in range(int(seconds * 240))]
+    return sorted(ev, key=lambda e: e[0])
+
+
+def _rest_k(prm: Params) -> np.ndarray:
+    return TrackingFilter(_calib(), prm)._rest_k
+
+
+def test_rest_releases_the_mean_rate_of_a_still_tool_chunk_by_chunk():
+    prm = Params()
+    k = _rest_k(prm)
+    bias = np.radians([0.4, -0.7, 1.3])
+    rest = kernels.rest_init()
+    released = []
+    for t, kind, x in _still_imu(6.0, bias, np.array([0.0, 0.0, 9.8])):
+        if kernels.rest_sample(rest, x, t, kind, k):
+            released.append((t, rest[25:28].copy()))
+    # at rest after rest_min_ms; a chunk is released when the next one has agreed with it
+    first = (prm.rest_min_ms + 2 * prm.rest_chunk_ms) * 1e-3
+    assert first <= released[0][0] < first + 0.1, released[0][0]
+    gaps = np.diff([t for t, _ in released])
+    assert len(released) >= 6 and np.all((gaps >= 0.5) & (gaps <= 0.51)), gaps  # one per chunk
+    sd_mean = math.radians(0.2) / math.sqrt(100)
+    for _, m in released:
+        assert np.abs(m - bias).max() < 4 * sd_mean, np.degrees(m - bias)
+
+
+def test_rest_uses_no_chunk_from_a_motions_onset_nor_a_slow_smooth_motion():
+    """A turn that starts slowly stays within 2 deg/s of its low-pass for a while: the chunk it
+    started in must not be used; nor must a slow sway that never leaves its low-pass."""
+    k = _rest_k(Params())
+    g = np.array([0.0, 0.0, 9.8])
+    rest = kernels.rest_init()
+    onset = 3.2  # the pending chunk then holds [2.5, 3.0) s and the next one is open
+    released = []
+    for t, kind, x in _still_imu(8.0, np.zeros(3), g):
+        rate = math.radians(4.0) * max(t - onset, 0.0)  # about x, ramping 4 deg/s per s
+        if kind == 0:
+            x = x + np.array([rate, 0.0, 0.0])
+        else:  # gravity turns with it
+            ang = math.radians(2.0) * max(t - onset, 0.0) ** 2
+            x = x + 9.8 * np.array([0.0, math.sin(ang), math.cos(ang) - 1.0])
+        if kernels.rest_sample(rest, x, t, kind, k):
+            released.append(t)
+    assert released and max(released) < onset, released
+    # a sway at 0.1 Hz, 5 deg/s: near its low-pass throughout (VQF's test alone calls it rest)
+    rest = kernels.rest_init()
+    n = 0
+    for t, kind, x in _still_imu(12.0, np.zeros(3), g):
+        w = 2 * math.pi * 0.1
+        if kind == 0:
+            x = x + np.array([math.radians(5.0) * math.sin(w * t), 0.0, 0.0])
+        else:
+            ang = math.radians(5.0) * (1 - math.cos(w * t)) / w
+            x = x + 9.8 * np.array([0.0, math.sin(ang), math.cos(ang) - 1.0])
+        n += kernels.rest_sample(rest, x, t, kind, k)
+    assert n == 0
+
+
+def test_at_rest_the_vertical_gyro_bias_is_learnt_without_vision():
+    """Without vision nothing else observes the bias about the vertical: with the rest update
+    the filter learns it, and the heading stops drifting."""
+    c = _calib()
+    R, _ = _pose()
+    f_true = c.R_tool_imu.T @ R.T @ (-G)
+    bias_v = c.R_tool_imu.T @ R.T @ np.array([0.0, 0.0, math.radians(1.0)])  # 1 deg/s about the vertical
+    heading = {}
+    for on in (True, False):
+        f = TrackingFilter(c, replace(Params(), rest_bias=on, init_gyro_bias_dps=2.0), frozenset({"imu"}))
+        s = f.new_state(0, R, 0.14, f_true)
+        for t, kind, x in _still_imu(20.0, bias_v, f_true):
+            if kind == 0:
+                f.on_gyro(s, int(t * 1e9), x)
+            else:
+                f.on_accel(s, int(t * 1e9), x)
+        dR = s.R @ R.T
+        heading[on] = math.degrees(math.atan2(dR[1, 0], dR[0, 0]))
+        if on:
+            assert s.counts["updates:rest"] >= 30
+            assert np.degrees(np.abs(s.bg - bias_v)).max() < 0.02, np.degrees(s.bg - bias_v)
+        else:
+            assert "updates:rest" not in s.counts
+    assert abs(heading[True]) < 4.0 and abs(heading[False]) > 15.0, heading

@@ -31,6 +31,8 @@ from tiplog.mcap_io import McapWriter
         ("{tof_min_mm: 100, tof_max_mm: 100}", ("tof_min_mm", "tof_max_mm")),
         ("depth_max_m: 0.01", ("depth_min_m", "depth_max_m")),
         ("gate_chi2_1: 0", ("gate_chi2_1", "> 0")),
+        ("rest_tau_ms: 0", ("rest_tau_ms", "> 0")),
+        ("rest_bias: 1", ("rest_bias", "true or false")),
     ],
 )
 def test_a_bad_value_is_refused_by_name(tmp_path, text, needles):
