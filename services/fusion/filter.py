@@ -147,6 +147,8 @@ class TrackingFilter:
         ])  # fmt: skip
         # the chunk mean's variance: white rate noise over the chunk, plus the slack
         self._rest_var = np.full(3, self.q_gyro / (p.rest_chunk_ms * 1e-3) + (p.rest_sigma_dps * DEG) ** 2)
+        self._rest_H = np.zeros((3, N))  # the chunk's mean rate measures b_g
+        self._rest_H[:, IBG] = np.eye(3)
         # a gyro sample's propagation through `propagate` (the smoother records every step
         # there), not inside the compiled gyro step: the same result, slower
         self.propagate_apart = False
@@ -326,9 +328,7 @@ class TrackingFilter:
         """The tool at rest: the mean gyro rate over a chunk of rest (`kernels.rest_sample`)
         is the bias, w = b_g. The gate turns away a slow steady turn taken for rest once the
         bias is known better than that turn's rate."""
-        H = np.zeros((3, N))
-        H[0, 9] = H[1, 10] = H[2, 11] = 1.0
-        return self._update(s, H, s.rest[25:28] - s.bg, self._rest_var, self.prm.gate_chi2_3, "rest")
+        return self._update(s, self._rest_H, s.rest[25:28] - s.bg, self._rest_var, self.prm.gate_chi2_3, "rest")
 
     def update_tof(self, s: State, range_m: float) -> bool:
         """Raw range through the ray-plane model rho = (h - m.(p + R o)) / (m.(R b)) + b_rho;

@@ -68,6 +68,21 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def _lever_accel(w_tool: np.ndarray, alpha_tool: np.ndarray, r_lever_tool: np.ndarray) -> np.ndarray:
+    """alpha x r + w x (w x r): the tip's acceleration relative to the IMU's, in tool coordinates,
+    where the lever arm r and so these terms are fixed (they turn with the tool)."""
+    return _cross(alpha_tool, r_lever_tool) + _cross(w_tool, _cross(w_tool, r_lever_tool))
+
+
+@njit(cache=True)
+def _skew(v: np.ndarray) -> np.ndarray:
+    out = np.zeros((3, 3))
+    out[0, 1], out[0, 2], out[1, 0] = -v[2], v[1], v[2]
+    out[1, 2], out[2, 0], out[2, 1] = -v[0], -v[1], v[0]
+    return out
+
+
+@njit(cache=True)
 def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
     """A (3, 3) @ x (3,) written out: numba hands `@` to BLAS, whose call costs more than the
     product at this size."""
@@ -126,17 +141,13 @@ def propagate(
     if imu:
         w_tool = _mv(R_ti, w_imu - bg)
         f_tool = _mv(R_ti, f_imu - ba)
-        # the tip's acceleration in tool coordinates, where the lever arm's terms are fixed
-        a_tool = f_tool + _cross(alpha_tool, r_lever_tool) + _cross(w_tool, _cross(w_tool, r_lever_tool))
+        a_tool = f_tool + _lever_accel(w_tool, alpha_tool, r_lever_tool)  # the tip's, tool coordinates
         a = _mv(R, a_tool)
         a[2] -= 9.80665
         wn = math.sqrt(w_tool[0] ** 2 + w_tool[1] ** 2 + w_tool[2] ** 2)
         # F_vth = -R [a_tool]x dt: the lever arm's terms turn with the tool as the specific
         # force does (they were left out, as if fixed in the base frame)
-        sk = np.zeros((3, 3))
-        sk[0, 1], sk[0, 2], sk[1, 0] = -a_tool[2], a_tool[1], a_tool[2]
-        sk[1, 2], sk[2, 0], sk[2, 1] = -a_tool[0], -a_tool[1], a_tool[0]
-        F_vth = _mm(R, sk) * -dt
+        F_vth = _mm(R, _skew(a_tool)) * -dt
         F_vba = _mm(R, R_ti) * -dt
         _exp(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, F_thth)
         F_thbg = R_ti * -dt
@@ -477,7 +488,7 @@ def gravity_jacobian(
     tool coordinates), so only gravity's share depends on the attitude error: H_theta =
     R_ti^T [R^T (-g)]x."""
     w_t = _mv(R_ti, w_imu - bg)
-    a_t = -_cross(alpha_tool, r_lever_tool) - _cross(w_t, _cross(w_t, r_lever_tool))  # tool coordinates
+    a_t = -_lever_accel(w_t, alpha_tool, r_lever_tool)  # the IMU's acceleration (tip at rest), tool coordinates
     w = np.empty(3)  # R^T (-g): gravity's share, in tool coordinates
     for i in range(3):
         w[i] = 9.80665 * R[2, i]
@@ -574,11 +585,8 @@ def transition(
         F[i, 3 + i] = dt
     if imu:
         w_tool = R_ti @ (w_imu - bg)
-        a_tool = R_ti @ (f_imu - ba) + _cross(alpha_tool, r_lever_tool) + _cross(w_tool, _cross(w_tool, r_lever_tool))
-        sk = np.zeros((3, 3))
-        sk[0, 1], sk[0, 2], sk[1, 0] = -a_tool[2], a_tool[1], a_tool[2]
-        sk[1, 2], sk[2, 0], sk[2, 1] = -a_tool[0], -a_tool[1], a_tool[0]
-        F[3:6, 6:9] = -(R @ sk) * dt
+        a_tool = R_ti @ (f_imu - ba) + _lever_accel(w_tool, alpha_tool, r_lever_tool)
+        F[3:6, 6:9] = -(R @ _skew(a_tool)) * dt
         F[3:6, 12:15] = -(R @ R_ti) * dt
         F[0:3, 6:9] = F[3:6, 6:9] * (0.5 * dt)
         F[0:3, 12:15] = F[3:6, 12:15] * (0.5 * dt)
