@@ -62,7 +62,7 @@ class State:
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
-        "t_init_ns", "tof_last", "rest",
+        "t_init_ns", "tof_last", "rest", "tip_held",
     )  # fmt: skip
 
     def copy(self) -> State:
@@ -71,6 +71,7 @@ class State:
         s.t_ns, s.brho, s.gyro_n, s.t_init_ns = self.t_ns, self.brho, self.gyro_n, self.t_init_ns
         s.last_grav_ns, s.last_tip_ns, s.last_vision_ns = self.last_grav_ns, self.last_tip_ns, self.last_vision_ns
         s.vis_reject_run, s.reacq, s.tof_last = self.vis_reject_run, self.reacq, self.tof_last
+        s.tip_held = self.tip_held
         s.p, s.v, s.R, s.P = self.p.copy(), self.v.copy(), self.R.copy(), self.P.copy()
         s.bg, s.ba = self.bg.copy(), self.ba.copy()
         s.w_imu, s.f_imu, s.alpha_tool = self.w_imu.copy(), self.f_imu.copy(), self.alpha_tool.copy()
@@ -198,6 +199,7 @@ class TrackingFilter:
         s.nis = {}
         s.tof_last = (-(1 << 62), 0.0)  # (t_ns, range_m) of the last ToF range applied
         s.reacq = ()  # (t_ns, phi_base (3,), dp_base_m (3,)) of frames gated out on innovation
+        s.tip_held = None  # (t_ns, residual_cam_m (3,)) of a surprising tip awaiting confirmation
         return s
 
     def init_from_vision(self, t_ns: int, obs: dict, f_imu: np.ndarray | None) -> State | None:
@@ -311,10 +313,49 @@ class TrackingFilter:
         if status:
             _bump(s.counts, f"rejected:{name}:innovation")
             return False
+        self._apply(s, name, nis, dx)
+        return True
+
+    def _apply(self, s: State, name: str, nis: float, dx: np.ndarray) -> None:
         _bump(s.counts, f"updates:{name}")
         _bump(s.nis, name, nis)
         s.brho += kernels.inject(s.p, s.v, s.R, s.bg, s.ba, dx)
-        return True
+
+    def _update_tip(self, s: State, H: np.ndarray, y: np.ndarray, resid_cam: np.ndarray) -> bool:
+        """The junction ray's update, a surprising one only once confirmed. A tip whose NIS
+        passes the gate but exceeds `tip_confirm_chi2` is held; it is applied when the next
+        tip (within `tip_confirm_ms`) is as surprising in the same way (the two residuals,
+        tip to ray in camera coordinates, within `tip_confirm_mm`), and dropped otherwise
+        (`rejected:vision_tip:unconfirmed`). Without it the labeler's gross junction errors
+        (1 frame in 500, 5-25 mm along the shaft) passed the gate once the depth had grown
+        uncertain between frames, and, without the ToF, the velocity they left carried the
+        tip tens of millimetres away while the true junctions that followed were gated out."""
+        prm = self.prm
+        r_var = np.full(2, self.ray_var)
+        held, s.tip_held = s.tip_held, None
+        if prm.tip_confirm_chi2 <= 0.0 or prm.tip_confirm_chi2 >= prm.gate_chi2_2:
+            return self._update(s, H, y, r_var, prm.gate_chi2_2, "vision_tip")
+        status, nis, dx = kernels.update(s.P, H, y, r_var, prm.tip_confirm_chi2, not self.brho_free(s))
+        if status == 0:
+            if held is not None:
+                _bump(s.counts, "rejected:vision_tip:unconfirmed")
+            self._apply(s, "vision_tip", nis, dx)
+            return True
+        if not nis <= prm.gate_chi2_2:
+            s.tip_held = held  # an outlier of its own: the held tip still waits for the next
+            _bump(s.counts, "rejected:vision_tip:innovation")
+            return False
+        if (
+            held is not None
+            and s.t_ns - held[0] <= prm.tip_confirm_ms * 1e6
+            and float(np.linalg.norm(resid_cam - held[1])) <= prm.tip_confirm_mm * 1e-3
+        ):
+            return self._update(s, H, y, r_var, prm.gate_chi2_2, "vision_tip")
+        if held is not None:
+            _bump(s.counts, "rejected:vision_tip:unconfirmed")
+        s.tip_held = (s.t_ns, resid_cam)
+        _bump(s.counts, "deferred:vision_tip")
+        return False
 
     def update_gravity(self, s: State) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and
@@ -435,7 +476,7 @@ class TrackingFilter:
                 H[:, IP] = EA
                 H[:, ITH] = (EA @ s.R) @ skew(E_Z) * self.jp
                 y = -(EA @ (J - cam))
-                if self._update(s, H, y, np.full(2, self.ray_var), prm.gate_chi2_2, "vision_tip"):
+                if self._update_tip(s, H, y, E.T @ y):
                     s.last_tip_ns = s.t_ns
                     applied = True
         s.vis_reject_run = 0 if applied else s.vis_reject_run + 1
@@ -479,6 +520,7 @@ class TrackingFilter:
             s.P[:, blk] = 0.0
             s.P[blk, blk] = init[blk, blk]
         s.reacq = ()
+        s.tip_held = None
         s.vis_reject_run = 0
         s.last_vision_ns = s.last_tip_ns = s.t_ns
         _bump(s.counts, "updates:reacquire")

@@ -21,7 +21,10 @@ from tiplog.userio import read_yaml, yaml_number
 
 SENSORS = frozenset({"imu", "tof", "vision"})
 _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
-_POSITIVE = ("tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", "rest_tau_ms", "rest_chunk_ms", *_GATES)
+_POSITIVE = (
+    "tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", "rest_tau_ms", "rest_chunk_ms", "tip_confirm_ms",
+    "tip_confirm_mm", *_GATES,
+)  # fmt: skip
 MAX_HISTORY_MS = 120_000.0  # the rewind history lives in memory: a snapshot per gyro sample
 
 
@@ -110,6 +113,12 @@ class Params:
     # the labeler's gross errors (a wrong end of the shaft, 5-25 mm) otherwise pass the
     # chi-square gate once the depth has grown uncertain between frames
     vision_tip_tof_gate_mm: float = 12.0
+    # a tip this surprising (NIS; 99 % of chi2 with 2 degrees of freedom) is applied only once
+    # the next tip, within the window, is off the same way (residuals within the tolerance):
+    # a gross junction error is one frame, a drifted state shows in every frame; 0 is off
+    tip_confirm_chi2: float = 2.0
+    tip_confirm_ms: float = 300.0
+    tip_confirm_mm: float = 3.0
     trocar_gate_mm: float = 3.5
     gated_out_tip: bool = True  # use the tip (not the axis) of frames that fail the trocar gate
     junction_min_sin2: float = 0.45

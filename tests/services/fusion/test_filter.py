@@ -319,11 +319,64 @@ def test_a_junction_far_from_the_tof_depth_is_refused_while_the_offset_is_curren
     assert s.counts.get("rejected:vision_tip:tof_disagrees", 0) == 1
     assert abs(float(u @ (s.p - p))) < 1e-3
     assert held.counts.get("rejected:vision_tip:tof_disagrees", 0) == 0
-    assert float(u @ (held.p - p)) > 5e-3  # applied: nothing vetoed it
+    assert held.counts["deferred:vision_tip"] == 1  # a surprise: it waits for the next frame
+    _frames(f, held, [_obs(f.c, R, p + 0.02 * u)])
+    assert float(u @ (held.p - p)) > 5e-3  # confirmed and applied: the ToF vetoed nothing
     tips = s.counts["updates:vision_tip"]
     f.update_vision(s, _obs(f.c, R, p + 0.004 * u))  # 4 mm: within what the ToF can tell
     assert s.counts["updates:vision_tip"] == tips + 1
     assert s.counts.get("rejected:vision_tip:tof_disagrees", 0) == 1
+
+
+def _depth_uncertain(f: TrackingFilter, s, mm: float):
+    """The state with `mm` of depth uncertainty added (IMU only for a while, no ToF range)."""
+    u = s.R[:, 2]
+    s.P[0:3, 0:3] += (mm * 1e-3) ** 2 * np.outer(u, u)
+    return u
+
+
+def test_a_surprising_tip_waits_for_the_next_frame_and_a_gross_one_is_dropped():
+    """A junction 15 mm too deep (the labeler's gross error) after the depth has grown 6 mm
+    uncertain passes the chi-square gate; held for confirmation, it is dropped when the next
+    frame's tip is where the state says. Without the confirmation it throws the depth."""
+    f, s, R, p = _run_static(3.0, np.zeros(3))
+    u = _depth_uncertain(f, s, 6.0)
+    off = TrackingFilter(f.c, replace(f.prm, tip_confirm_chi2=0.0))
+    plain = s.copy()
+    off.update_vision(plain, _obs(f.c, R, p + 0.015 * u))
+    assert plain.counts.get("rejected:vision_tip:innovation", 0) == 0
+    assert float(u @ (plain.p - p)) > 5e-3  # the chi-square gate alone let it in
+    f.update_vision(s, _obs(f.c, R, p + 0.015 * u))
+    assert s.counts["deferred:vision_tip"] == 1
+    assert abs(float(u @ (s.p - p))) < 0.5e-3
+    tips = s.counts["updates:vision_tip"]
+    _frames(f, s, [_obs(f.c, R, p)])
+    assert s.counts["updates:vision_tip"] == tips + 1
+    assert s.counts["rejected:vision_tip:unconfirmed"] == 1
+    assert s.tip_held is None
+    assert abs(float(u @ (s.p - p))) < 0.5e-3
+
+
+def test_a_depth_that_drifted_is_corrected_once_two_frames_agree():
+    """The state 12 mm too shallow and unsure of it: the first frame's tip is held, the second,
+    off the same way, confirms it and is applied."""
+    f, s, R, p = _run_static(3.0, np.zeros(3))
+    u = _depth_uncertain(f, s, 6.0)
+    s.p = s.p - 0.012 * u
+    f.update_vision(s, _obs(f.c, R, p))
+    assert s.counts["deferred:vision_tip"] == 1
+    assert float(u @ (p - s.p)) > 11.5e-3
+    _frames(f, s, [_obs(f.c, R, p)])
+    assert s.counts.get("rejected:vision_tip:unconfirmed", 0) == 0
+    assert abs(float(u @ (s.p - p))) < 2e-3
+    # a tip that disagrees with the held one by more than the tolerance does not confirm it
+    s2 = s.copy()
+    s2.P[0:3, 0:3] += (6e-3) ** 2 * np.outer(u, u)
+    s2.p = s2.p - 0.012 * u
+    f.update_vision(s2, _obs(f.c, R, p))
+    _frames(f, s2, [_obs(f.c, R, p + 0.006 * u)])
+    assert s2.counts["rejected:vision_tip:unconfirmed"] == 1
+    assert s2.counts["deferred:vision_tip"] == 3  # the second is held in its turn
 
 
 def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():

@@ -32,6 +32,8 @@ from tiplog.mcap_io import McapWriter
         ("depth_max_m: 0.01", ("depth_min_m", "depth_max_m")),
         ("gate_chi2_1: 0", ("gate_chi2_1", "> 0")),
         ("rest_tau_ms: 0", ("rest_tau_ms", "> 0")),
+        ("tip_confirm_ms: 0", ("tip_confirm_ms", "> 0")),
+        ("tip_confirm_chi2: -1", ("tip_confirm_chi2", ">= 0")),
         ("rest_bias: 1", ("rest_bias", "true or false")),
     ],
 )
