@@ -199,7 +199,7 @@ class TrackingFilter:
         s.nis = {}
         s.tof_last = (-(1 << 62), 0.0)  # (t_ns, range_m) of the last ToF range applied
         s.reacq = ()  # (t_ns, phi_base (3,), dp_base_m (3,)) of frames gated out on innovation
-        s.tip_held = None  # (t_ns, residual_cam_m (3,)) of a surprising tip awaiting confirmation
+        s.tip_held = None  # (t_ns, residual_cam_m (3,), replaced a dropped one) of a tip awaiting confirmation
         return s
 
     def init_from_vision(self, t_ns: int, obs: dict, f_imu: np.ndarray | None) -> State | None:
@@ -329,7 +329,10 @@ class TrackingFilter:
         (`rejected:vision_tip:unconfirmed`). Without it the labeler's gross junction errors
         (1 frame in 500, 5-25 mm along the shaft) passed the gate once the depth had grown
         uncertain between frames, and, without the ToF, the velocity they left carried the
-        tip tens of millimetres away while the true junctions that followed were gated out."""
+        tip tens of millimetres away while the true junctions that followed were gated out.
+        At most two tips in a row wait: a surprising tip that disagrees with a held one that
+        had itself replaced a dropped one is applied, so a state moving fast against vision
+        (without the IMU, or after a gross error got in) is never left to vision's gate alone."""
         prm = self.prm
         r_var = np.full(2, self.ray_var)
         held, s.tip_held = s.tip_held, None
@@ -345,15 +348,16 @@ class TrackingFilter:
             s.tip_held = held  # an outlier of its own: the held tip still waits for the next
             _bump(s.counts, "rejected:vision_tip:innovation")
             return False
-        if (
-            held is not None
-            and s.t_ns - held[0] <= prm.tip_confirm_ms * 1e6
-            and float(np.linalg.norm(resid_cam - held[1])) <= prm.tip_confirm_mm * 1e-3
-        ):
-            return self._update(s, H, y, r_var, prm.gate_chi2_2, "vision_tip")
-        if held is not None:
+        if held is not None and s.t_ns - held[0] > prm.tip_confirm_ms * 1e6:
             _bump(s.counts, "rejected:vision_tip:unconfirmed")
-        s.tip_held = (s.t_ns, resid_cam)
+            held = None
+        if held is not None:
+            agree = float(np.linalg.norm(resid_cam - held[1])) <= prm.tip_confirm_mm * 1e-3
+            if not agree:
+                _bump(s.counts, "rejected:vision_tip:unconfirmed")
+            if agree or held[2]:
+                return self._update(s, H, y, r_var, prm.gate_chi2_2, "vision_tip")
+        s.tip_held = (s.t_ns, resid_cam, held is not None)
         _bump(s.counts, "deferred:vision_tip")
         return False
 

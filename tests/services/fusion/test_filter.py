@@ -377,6 +377,12 @@ def test_a_depth_that_drifted_is_corrected_once_two_frames_agree():
     _frames(f, s2, [_obs(f.c, R, p + 0.006 * u)])
     assert s2.counts["rejected:vision_tip:unconfirmed"] == 1
     assert s2.counts["deferred:vision_tip"] == 3  # the second is held in its turn
+    # no more than two wait in a row: a third that disagrees again is applied
+    tips = s2.counts["updates:vision_tip"]
+    _frames(f, s2, [_obs(f.c, R, p - 0.006 * u)])
+    assert s2.counts["rejected:vision_tip:unconfirmed"] == 2
+    assert s2.counts["updates:vision_tip"] == tips + 1
+    assert s2.tip_held is None
 
 
 def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
