@@ -336,15 +336,16 @@ class TrackingFilter:
         prm = self.prm
         r_var = np.full(2, self.ray_var)
         held, s.tip_held = s.tip_held, None
-        if prm.tip_confirm_chi2 <= 0.0 or prm.tip_confirm_chi2 >= prm.gate_chi2_2:
-            return self._update(s, H, y, r_var, prm.gate_chi2_2, "vision_tip")
-        status, nis, dx = kernels.update(s.P, H, y, r_var, prm.tip_confirm_chi2, not self.brho_free(s))
+        gate = prm.gate_chi2_2
+        # switched off (0) or at the gate, nothing passes the gate and fails the confirmation
+        confirm = prm.tip_confirm_chi2 if 0.0 < prm.tip_confirm_chi2 < gate else gate
+        status, nis, dx = kernels.update(s.P, H, y, r_var, confirm, not self.brho_free(s))
         if status == 0:
             if held is not None:
                 _bump(s.counts, "rejected:vision_tip:unconfirmed")
             self._apply(s, "vision_tip", nis, dx)
             return True
-        if not nis <= prm.gate_chi2_2:
+        if not nis <= gate:
             s.tip_held = held  # an outlier of its own: the held tip still waits for the next
             _bump(s.counts, "rejected:vision_tip:innovation")
             return False
@@ -356,7 +357,7 @@ class TrackingFilter:
             if not agree:
                 _bump(s.counts, "rejected:vision_tip:unconfirmed")
             if agree or held[2]:
-                return self._update(s, H, y, r_var, prm.gate_chi2_2, "vision_tip")
+                return self._update(s, H, y, r_var, gate, "vision_tip")
         s.tip_held = (s.t_ns, resid_cam, held is not None)
         _bump(s.counts, "deferred:vision_tip")
         return False
