@@ -34,7 +34,7 @@ def to_diagnostics(
     inputs: int = 0,
     queue_drops: int = 0,
 ) -> FusionDiagnostics:
-    """FusionRunner.diagnostics() (updates, rejected, nis, rewinds, max_rewind_ms, lag_ms,
+    """FusionRunner.diagnostics() (updates, rejected, deferred, nis, rewinds, max_rewind_ms, lag_ms,
     mode, resets, reset_reasons, vision_locked, initialised) -> FusionDiagnostics.
     `extra_rejected` adds counts the service sees before the runner (undecodable payloads)."""
     m = FusionDiagnostics()
@@ -51,6 +51,8 @@ def to_diagnostics(
             rejected[k] = rejected.get(k, 0) + int(v)
     for k, v in rejected.items():
         m.rejected[str(k)] = _u64(v)
+    for k, v in (diag.get("deferred") or {}).items():
+        m.deferred[str(k)] = _u64(v)
     for k, v in (diag.get("nis") or {}).items():
         m.innovation_nis[str(k)] = float(v)
     m.rewinds = _u64(diag.get("rewinds", 0))

@@ -226,10 +226,12 @@ class FusionRunner:
         updates = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("updates:")}
         rejected = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("rejected:")}
         rejected.update(self.dropped)
+        deferred = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("deferred:")}
         nis = {k: v / max(updates.get(k, 0), 1) for k, v in nis_sum.items()}
         return {
             "updates": updates,
             "rejected": rejected,
+            "deferred": deferred,
             "nis": nis,
             "rewinds": int(self.stats["rewinds"]),
             "max_rewind_ms": float(self.stats["max_rewind_ms"]),

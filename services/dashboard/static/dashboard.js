@@ -143,6 +143,7 @@
       for (const [k, v] of Object.entries(diag.reset_reasons || {})) drows.push([[`resets: ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.updates || {})) drows.push([[`updates ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.rejected || {})) drows.push([[`rejected ${k}`, String(v)]]);
+      for (const [k, v] of Object.entries(diag.deferred || {})) drows.push([[`deferred ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.innovation_nis || {})) drows.push([[`NIS ${k}`, fmt(v, 2)]]);
     } else drows.push([["diagnostics", "none received"]]);
     fillTable($("diagnostics").tBodies[0], drows);

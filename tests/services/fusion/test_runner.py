@@ -12,6 +12,7 @@ import pytest
 
 from services.fusion.evaluation import _interp as _truth_at
 from services.fusion.params import Params
+from services.fusion.publish import to_diagnostics
 from services.fusion.runner import FusionRunner
 from tests.services.fusion.sessions import bench_session, inputs
 from tiplog.calibration import Calibration
@@ -109,6 +110,22 @@ def test_too_old_frame_counted_and_dropped(session):
     assert r1.diagnostics()["rejected"].get("vision:too_old", 0) == 1
     assert r0.diagnostics()["rejected"].get("vision:too_old", 0) == 0
     np.testing.assert_array_equal(_arrays(base)[1], _arrays(out)[1])
+
+
+def test_tips_held_for_confirmation_are_counted_in_the_diagnostics(session):
+    """A surprising vision tip waits for the next frame: the diagnostics count those held
+    (`deferred`) apart from those refused, and carry them into fusion/diagnostics."""
+    msgs, calib, _ = session
+    _, r_default = _run(msgs, calib)
+    _, r_eager = _run(msgs, calib, Params(tip_confirm_chi2=0.02))  # most tips now surprise
+    d_default, d_eager = r_default.diagnostics(), r_eager.diagnostics()
+    held = d_eager["deferred"].get("vision_tip", 0)
+    assert held > 10 and held > d_default["deferred"].get("vision_tip", 0)
+    # a held tip is confirmed (the next one applied) or dropped: never applied itself
+    assert d_eager["updates"]["vision_tip"] < d_default["updates"]["vision_tip"]
+    assert d_eager["rejected"].get("vision_tip:unconfirmed", 0) > 0
+    msg = to_diagnostics(d_eager, stamp_ns=1)
+    assert dict(msg.deferred) == {"vision_tip": held}
 
 
 def test_corrupt_and_non_finite_inputs_never_reach_the_output(session):
