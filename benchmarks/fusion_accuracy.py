@@ -2,15 +2,17 @@
 parameters: full fusion, sensor subsets, degraded vision, as the paper's tables.
 
 Subsets and degradations (`third`, `noise5`, `blackout1/3/10`, `junction_hidden`) are those of
-`services.fusion.ablation` (the paper's sixteen blackouts were over one recording holding both
-the sweeps and the teleoperated blocks, so sixteen per session is the harsher reading). The
+`services.fusion.ablation`: sixteen blackouts per session, or with `--shared-blackouts` the
+paper's sixteen shared over the sessions given in proportion to their blocks (the paper's were
+over one recording holding both the sweeps and the teleoperated blocks, so sixteen per session
+is the harsher reading; `tiplog evaluate --paper` reports both). The
 filter never sees the truth; scoring uses `services.fusion.evaluation` (first 20 % of each
 block excluded). `tiplog evaluate SESSION --ablations` runs the same variants in parallel.
 `smoothed` is the full fusion through the RTS smoother, as an archive gets it; `smoothed:NAME`
 smooths any subset or degradation (`smoothed:blackout10`: what 10 s blackouts cost an archive).
 
     python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...]
-        [--calibration FILE] [--json OUT]
+        [--calibration FILE] [--shared-blackouts] [--json OUT]
 """
 
 from __future__ import annotations
@@ -23,7 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
-from services.fusion.ablation import DEGRADED, SUBSETS, run_variant, variant_inputs
+from services.fusion.ablation import (
+    BLACKOUT_COUNT,
+    DEGRADED,
+    SUBSETS,
+    run_variant,
+    session_blocks,
+    shared_blackouts,
+    variant_inputs,
+)
 from services.fusion.evaluation import Estimate, block_windows, coverage_note, load_truth, score_continuous
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
@@ -52,6 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--calibration", help="calibration YAML for every session (default: each one's as-calibrated metadata)"
     )
+    ap.add_argument(
+        "--shared-blackouts",
+        action="store_true",
+        help="the paper's sixteen blackouts shared over the sessions given (default: sixteen in each)",
+    )
     ap.add_argument("--json", help="write all results here")
     args = ap.parse_args(argv)
     params = Params.load_yaml(args.params) if args.params else Params()
@@ -61,7 +76,10 @@ def main(argv: list[str] | None = None) -> int:
         if base not in SUBSETS and base not in DEGRADED:
             ap.error(f"--variants: unknown variant {v!r}")
     results = []
-    for path in args.sessions:
+    counts = [BLACKOUT_COUNT] * len(args.sessions)
+    if args.shared_blackouts:
+        counts = shared_blackouts([sum(b - a for _, a, b in session_blocks(p)) for p in args.sessions])
+    for path, n_blackouts in zip(args.sessions, counts, strict=True):
         truth = load_truth(path)
         calib = (
             Calibration.load_yaml(args.calibration)
@@ -72,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         blocks = block_windows(truth.trials)
         for v in variants:
             base, smoothed = split_variant(v)
-            use, sensors = variant_inputs(base, msgs, blocks, seed=0)
+            use, sensors = variant_inputs(base, msgs, blocks, seed=0, blackouts=n_blackouts)
             if smoothed:
                 t0 = time.process_time()
                 sm = smooth(calib, params, use, parse_sensors(sensors))
@@ -93,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
                 "reset_reasons": diag.get("reset_reasons", {}),
                 "reacquired": int(diag.get("updates", {}).get("reacquire", 0)),
             }
+            if base.startswith("blackout"):
+                row["blackouts"] = n_blackouts
             results.append(row)
             blk = " ".join(f"{b['name']}={b['tip_rmse_mm']:.2f}{coverage_note(b['coverage'])}" for b in r["blocks"])
             print(

@@ -6,7 +6,9 @@ Degradations change only the vision observations the filter is fed (the truth is
 `third` keeps one accepted frame in three, `noise5` adds white tangent-plane noise so that
 the per-frame axis noise is five times the recording's (seeded; the paper "multiplied the vision
 axis noise fivefold", the junction is left as recorded), `blackout1/3/10`
-blanks vision for 1, 3 or 10 s at sixteen points of the session shared over its blocks, and
+blanks vision for 1, 3 or 10 s at sixteen points of the session shared over its blocks (or at
+`blackouts` points: the paper's sixteen were spread over one recording of all seven blocks, so
+`shared_blackouts` shares them over the sessions that hold those blocks), and
 `junction_hidden` clears `junction_visible` on every observation after the first second of
 accepted frames that show it (no independent tip from vision, so the ToF offset stays held; the
 tracking filter starts only from a frame with a visible junction once an accelerometer sample has
@@ -20,6 +22,7 @@ nothing large is pickled between processes.
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import os
 import time
@@ -73,6 +76,29 @@ def blackout_spans(
     return spans
 
 
+def shared_blackouts(lengths_ns: list[int], count: int = BLACKOUT_COUNT) -> list[int]:
+    """`count` blackouts shared over sessions whose blocks last `lengths_ns` in all, in
+    proportion to those lengths (largest remainder: they add up to `count`). The paper blanked
+    vision at sixteen points of one recording holding both kinds of block; here each kind is
+    its own session, and sixteen in each would be twice as dense."""
+    total = sum(lengths_ns)
+    if total <= 0:
+        return [0] * len(lengths_ns)
+    quota = [count * n / total for n in lengths_ns]
+    out = [int(q) for q in quota]
+    for i in sorted(range(len(quota)), key=lambda i: out[i] - quota[i])[: count - sum(out)]:
+        out[i] += 1
+    return out
+
+
+def session_blocks(session: str | Path) -> list[tuple[str, int, int]]:
+    """A bench session's scored blocks (`block_windows`), from its `trials` metadata alone."""
+    md = read_metadata(session)
+    if "trials" not in md:
+        raise ValueError(f"{session}: no 'trials' metadata (not a bench session with ground truth)")
+    return block_windows(json.loads(md["trials"]["json"]))
+
+
 def _add_noise(msg: Any, rng: np.random.Generator) -> Any:
     """The tangent planes' white noise made five times the recording's (the paper "multiplied
     the vision axis noise fivefold"); the junction ray is left as recorded."""
@@ -107,13 +133,21 @@ def vision_start(msgs: Iterable[tuple]) -> list[tuple]:
     return [e for e in msgs if e[0] != "vision/observation" or t0 <= e[1].header.stamp_ns < t1]
 
 
-def degrade(name: str, msgs: Iterable[tuple], blocks: list[tuple[str, int, int]], seed: int = 0) -> list[tuple]:
+def degrade(
+    name: str,
+    msgs: Iterable[tuple],
+    blocks: list[tuple[str, int, int]],
+    seed: int = 0,
+    blackouts: int = BLACKOUT_COUNT,
+) -> list[tuple]:
     """The filter's inputs [(topic, message, arrival_ns)] with vision degraded as `name` (one of
-    DEGRADED); other topics pass unchanged. ValueError for an unknown name."""
+    DEGRADED; `blackouts`: how many for blackout1/3/10); other topics pass unchanged.
+    ValueError for an unknown name."""
     if name not in DEGRADED:
         raise ValueError(f"degradation: unknown name {name!r}; choose from {', '.join(DEGRADED)}")
     rng = np.random.default_rng(seed)
-    spans = blackout_spans(blocks, int(float(name[len("blackout") :]) * 1e9)) if name.startswith("blackout") else []
+    length_ns = int(float(name[len("blackout") :]) * 1e9) if name.startswith("blackout") else 0
+    spans = blackout_spans(blocks, length_ns, blackouts) if length_ns else []
     msgs = list(msgs)
     t0, t1 = start_window(msgs) or (0, 0)
     out = []
@@ -139,14 +173,14 @@ def degrade(name: str, msgs: Iterable[tuple], blocks: list[tuple[str, int, int]]
 
 
 def variant_inputs(
-    variant: str, msgs: list[tuple], blocks: list[tuple[str, int, int]], seed: int = 0
+    variant: str, msgs: list[tuple], blocks: list[tuple[str, int, int]], seed: int = 0, blackouts: int = BLACKOUT_COUNT
 ) -> tuple[list[tuple], str]:
     """(the filter's inputs, its sensors) for one variant (a SUBSETS or DEGRADED name)."""
     if variant == "imu_tof_start":
         return vision_start(msgs), SUBSETS[variant]
     if variant in SUBSETS:
         return msgs, SUBSETS[variant]
-    return degrade(variant, msgs, blocks, seed), SUBSETS["full"]
+    return degrade(variant, msgs, blocks, seed, blackouts), SUBSETS["full"]
 
 
 def run_variant(
@@ -173,11 +207,17 @@ def variants() -> list[str]:
 
 
 def evaluate_variant(
-    session: str | Path, variant: str, calibration: Path | None = None, seed: int = 0, series: bool = False
+    session: str | Path,
+    variant: str,
+    calibration: Path | None = None,
+    seed: int = 0,
+    series: bool = False,
+    blackouts: int = BLACKOUT_COUNT,
 ) -> dict[str, Any]:
     """One variant on one session (reads the MCAP itself; safe to run in a worker process).
     `calibration`: a calibration YAML, else the session's `calibration_as_calibrated`;
-    `series`: keep the scored time series (private `_series`, for plots)."""
+    `series`: keep the scored time series (private `_series`, for plots); `blackouts`: how
+    many for blackout1/3/10 (reported as `blackouts`)."""
     session = Path(session)
     truth = load_truth(session)
     calib = (
@@ -186,7 +226,7 @@ def evaluate_variant(
         else Calibration.from_mcap_metadata(read_metadata(session), where=str(session))
     )
     msgs = list(iter_inputs(session, {}))
-    use, sensors = variant_inputs(variant, msgs, block_windows(truth.trials), seed)
+    use, sensors = variant_inputs(variant, msgs, block_windows(truth.trials), seed, blackouts)
     est, diag, cpu = run_variant(use, calib, Params(), sensors)
     r = score_continuous(truth, est)
     out = {
@@ -204,6 +244,8 @@ def evaluate_variant(
         "resets": int(diag.get("resets", 0)),
         "reacquired": int(diag.get("updates", {}).get("reacquire", 0)),
     }
+    if variant.startswith("blackout"):
+        out["blackouts"] = int(blackouts)
     if series:
         out["_series"] = r["_series"]
     return out

@@ -54,6 +54,7 @@ QUICK_DURATION_S = {
     "teleop": 40,
 }
 CONTINUOUS = ("sweeps", "teleop")
+PER_SESSION = "_per_session"  # blackouts: sixteen in each session, not shared over both
 
 
 def _tiplog(*args: str) -> list[str]:
@@ -126,10 +127,20 @@ def _task_stability(d: Path) -> dict[str, Any]:
 
 
 def _task_variant(d: Path, scen: str, variant: str, calibrated: bool = False) -> dict[str, Any]:
-    from services.fusion.ablation import evaluate_variant
+    """One subset or degradation. Blackouts as the paper placed them: its sixteen shared over
+    both continuous sessions in proportion to their blocks (`blackout10`), or, the harsher
+    reading, sixteen in each session (`blackout10_per_session`)."""
+    from services.fusion.ablation import BLACKOUT_COUNT, evaluate_variant, session_blocks, shared_blackouts
 
     cal = d / "calibration.yaml" if calibrated else None
-    return evaluate_variant(d / "sessions" / f"{scen}.mcap", variant, cal, series=variant == "full")
+    base, per_session = variant.removesuffix(PER_SESSION), variant.endswith(PER_SESSION)
+    n = BLACKOUT_COUNT
+    if base.startswith("blackout") and not per_session:
+        lengths = [sum(b - a for _, a, b in session_blocks(d / "sessions" / f"{s}.mcap")) for s in CONTINUOUS]
+        n = shared_blackouts(lengths)[CONTINUOUS.index(scen)]
+    r = evaluate_variant(d / "sessions" / f"{scen}.mcap", base, cal, series=base == "full", blackouts=n)
+    r["variant"] = variant
+    return r
 
 
 def _run_task(name: str, fn_name: str, args: tuple) -> tuple[str, Any, str | None, float]:
@@ -172,9 +183,8 @@ def _ablations(calibrated: bool) -> list[tuple[str, str, tuple]]:
     """Every subset and degradation on both continuous sessions (arguments after the folder)."""
     from services.fusion.ablation import variants
 
-    return [
-        (f"ablation:{s}:{v}", "_task_variant", (s, v, calibrated)) for s in ("teleop", "sweeps") for v in variants()
-    ]
+    names = [*variants(), *(v + PER_SESSION for v in variants() if v.startswith("blackout"))]
+    return [(f"ablation:{s}:{v}", "_task_variant", (s, v, calibrated)) for s in ("teleop", "sweeps") for v in names]
 
 
 # Run once the calibration they read is written. The subsets and degraded vision run with the
@@ -290,6 +300,8 @@ def gather(results: dict[str, Any], errors: dict[str, str], ablations_on: str = 
             )
             for m in row:
                 row[m][scen] = r[m]
+            if "blackouts" in r:
+                row.setdefault("blackouts", {})[scen] = r["blackouts"]
             if variant == "full" and res["ablations_calibration"] == "calibrate":
                 res["dynamic"].setdefault(scen, {})["calibrated"] = r
         elif name.startswith("as_calibrated:"):

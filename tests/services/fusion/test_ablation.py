@@ -9,7 +9,15 @@ import json
 import numpy as np
 import pytest
 
-from services.fusion.ablation import DEGRADED, JUNCTION_INIT_NS, SUBSETS, blackout_spans, degrade, vision_start
+from services.fusion.ablation import (
+    DEGRADED,
+    JUNCTION_INIT_NS,
+    SUBSETS,
+    blackout_spans,
+    degrade,
+    shared_blackouts,
+    vision_start,
+)
 from tests.services.fusion.sessions import bench_session
 from tiplog.cli import main as tiplog_main
 from tiplog.v1.device_pb2 import Gyro
@@ -90,6 +98,21 @@ def test_blackouts_drop_accepted_frames_inside_the_spans_only():
     kept = {m.header.stamp_ns for m in _vision(out)}
     assert inside and not any(m.header.stamp_ns in kept for m in inside)
     assert len(_vision(out)) == len(_vision(msgs)) - len(inside)
+
+
+def test_the_papers_sixteen_blackouts_are_shared_over_sessions_by_the_length_of_their_blocks():
+    # the bench's sweeps and teleoperated sessions: 3 and 4 blocks, 287 and 384 s scored
+    assert shared_blackouts([287 * S, 384 * S]) == [7, 9]
+    assert shared_blackouts([10 * S, 10 * S, 10 * S]) == [6, 5, 5]  # the largest remainders first
+    assert sum(shared_blackouts([1, 2, 3, 5, 7], 16)) == 16
+    assert shared_blackouts([0, 0]) == [0, 0]
+    msgs = _stream(600)  # 40 s
+    blocks = [("sweep_pitch", 0, 40 * S)]
+    seven = degrade("blackout1", msgs, blocks, blackouts=7)
+    sixteen = degrade("blackout1", msgs, blocks)
+    dropped = [len(_vision(msgs)) - len(_vision(o)) for o in (seven, sixteen)]
+    assert 0 < dropped[0] < dropped[1]
+    assert len(blackout_spans(blocks, S, 7)) == 7
 
 
 def test_noise5_tilts_each_normal_by_the_added_noise():

@@ -68,7 +68,9 @@ def test_paper_quick_end_to_end(tmp_path):
     cmd = [sys.executable, "-m", "tiplog.cli", "evaluate", "--paper", "--quick", "--out", str(out), "--jobs", "2"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
-    n = 11 + 2 * len(SUBSETS) + 2 * len(DEGRADED)  # 7 protocol/calibration tasks, 4 after calibrate
+    # 7 protocol/calibration tasks, 4 after calibrate, and every subset and degradation on both
+    # sessions, the blackouts twice (shared over the two sessions as the paper's, and per session)
+    n = 11 + 2 * len(SUBSETS) + 2 * len(DEGRADED) + 2 * 3
     assert "generating 8 bench sessions" in r.stdout and f"{n}/{n}" in r.stdout  # progress lines
     rep = json.loads((out / "report.json").read_text())
     assert rep["errors"] == {}, rep["errors"]
@@ -84,7 +86,12 @@ def test_paper_quick_end_to_end(tmp_path):
             assert rep["subsets"][name]["tip_rmse_mm"][scen] > 0
         for name in DEGRADED:
             assert rep["degraded"][name]["tip_rmse_mm"][scen] > 0
+        for name in ("blackout1", "blackout3", "blackout10"):
+            assert rep["degraded"][f"{name}_per_session"]["blackouts"][scen] == 16
         assert rep["dynamic"][scen]["calibrated"]["tip_rmse_mm"] > 0
+    # the paper's sixteen, shared over the two sessions in proportion to their blocks
+    shared = rep["degraded"]["blackout1"]["blackouts"]
+    assert shared["sweeps"] + shared["teleop"] == 16 and 0 < shared["sweeps"] < 16
     assert rep["latency"] and rep["stability"]["holds"] and rep["magnetometer"]["rotation"]["trials"] > 0
     assert rep["calibration"]["report"] and (out / "calibration.yaml").exists()
     md = (out / "report.md").read_text()
