@@ -1,5 +1,6 @@
 """The accuracy benchmark's degraded-vision spans: sixteen blackouts per session, inside the
-scored blocks, never overlapping (placed per block they merged into block-long blackouts)."""
+scored blocks, never overlapping (placed per block they merged into block-long blackouts), or
+the paper's sixteen shared over the sessions given."""
 
 from __future__ import annotations
 
@@ -40,3 +41,20 @@ def test_an_unknown_variant_is_refused_before_any_session_is_read(tmp_path, caps
         main([str(tmp_path / "absent.mcap"), "--variants", "full,smoothed:blackout7"])
     assert e.value.code == 2
     assert "unknown variant 'smoothed:blackout7'" in capsys.readouterr().err
+
+
+def test_shared_blackouts_split_the_papers_sixteen_over_the_sessions_given(tmp_path_factory, tmp_path):
+    import json
+
+    from benchmarks.fusion_accuracy import main
+    from tests.services.fusion.sessions import bench_session
+
+    short = bench_session(tmp_path_factory, "teleop", 11, 9.0)
+    long = bench_session(tmp_path_factory, "teleop", 12, 18.0)
+    out = tmp_path / "r.json"
+    assert main([str(short), str(long), "--variants", "blackout1", "--shared-blackouts", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    counts = [r["blackouts"] for r in rows]
+    assert sum(counts) == 16 and counts[0] < counts[1]  # in proportion to the blocks' length
+    assert main([str(short), "--variants", "blackout1", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())[0]["blackouts"] == 16  # sixteen per session by default
