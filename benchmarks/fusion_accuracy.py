@@ -34,12 +34,20 @@ from services.fusion.ablation import (
     shared_blackouts,
     variant_inputs,
 )
-from services.fusion.evaluation import Estimate, block_windows, coverage_note, load_truth, score_continuous
-from services.fusion.params import Params, parse_sensors
+from services.fusion.evaluation import (
+    Estimate,
+    EvaluationError,
+    block_windows,
+    coverage_note,
+    load_truth,
+    score_continuous,
+)
+from services.fusion.params import Params, ParamsError, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.smoother import smooth
-from tiplog.calibration import Calibration
+from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import read_metadata
+from tiplog.userio import UserError
 
 SMOOTH = "smoothed"  # full fusion through the RTS smoother; `smoothed:VARIANT` smooths that variant
 
@@ -69,23 +77,28 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--json", help="write all results here")
     args = ap.parse_args(argv)
-    params = Params.load_yaml(args.params) if args.params else Params()
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     for v in variants:
         base, _ = split_variant(v)
         if base not in SUBSETS and base not in DEGRADED:
             ap.error(f"--variants: unknown variant {v!r}")
+    try:
+        return _run(args, variants)
+    except (CalibrationError, EvaluationError, ParamsError, UserError, OSError) as e:  # one line, no traceback
+        print(f"fusion_accuracy: {e}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace, variants: list[str]) -> int:
+    params = Params.load_yaml(args.params) if args.params else Params()
+    given = Calibration.load_yaml(args.calibration) if args.calibration else None
     results = []
     counts = [BLACKOUT_COUNT] * len(args.sessions)
     if args.shared_blackouts:
         counts = shared_blackouts([sum(b - a for _, a, b in session_blocks(p)) for p in args.sessions])
     for path, n_blackouts in zip(args.sessions, counts, strict=True):
         truth = load_truth(path)
-        calib = (
-            Calibration.load_yaml(args.calibration)
-            if args.calibration
-            else Calibration.from_mcap_metadata(read_metadata(path), where=path)
-        )
+        calib = given or Calibration.from_mcap_metadata(read_metadata(path), where=path)
         msgs = list(iter_inputs(Path(path), {}))
         blocks = block_windows(truth.trials)
         for v in variants:

@@ -58,3 +58,16 @@ def test_shared_blackouts_split_the_papers_sixteen_over_the_sessions_given(tmp_p
     assert sum(counts) == 16 and counts[0] < counts[1]  # in proportion to the blocks' length
     assert main([str(short), "--variants", "blackout1", "--json", str(out)]) == 0
     assert json.loads(out.read_text())[0]["blackouts"] == 16  # sixteen per session by default
+
+
+def test_a_wrong_file_gets_one_line_and_exit_2(tmp_path, capsys):
+    from benchmarks.fusion_accuracy import main
+
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("not a recording")
+    assert main([str(not_mcap), "--calibration", str(tmp_path / "absent.yaml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "absent.yaml" in err[0]
+    assert main([str(not_mcap)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "notes.mcap" in err[0]
