@@ -53,6 +53,7 @@ SUBSETS = {
 }
 DEGRADED = ("third", "noise5", "blackout1", "blackout3", "blackout10", "junction_hidden")
 BLACKOUT_COUNT = 16
+PER_SESSION = "_per_session"  # a report's name for blackouts sixteen per session, not shared over sessions
 JUNCTION_INIT_NS = 1_000_000_000  # junction_hidden keeps the junction this long, to start from
 # the recording's per-frame (white) tangent-plane noise, from the bench's defaults; five times
 # in total needs sqrt(25 - 1) times that added

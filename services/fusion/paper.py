@@ -54,7 +54,6 @@ QUICK_DURATION_S = {
     "teleop": 40,
 }
 CONTINUOUS = ("sweeps", "teleop")
-PER_SESSION = "_per_session"  # blackouts: sixteen in each session, not shared over both
 
 
 def _tiplog(*args: str) -> list[str]:
@@ -130,7 +129,13 @@ def _task_variant(d: Path, scen: str, variant: str, calibrated: bool = False) ->
     """One subset or degradation. Blackouts as the paper placed them: its sixteen shared over
     both continuous sessions in proportion to their blocks (`blackout10`), or, the harsher
     reading, sixteen in each session (`blackout10_per_session`)."""
-    from services.fusion.ablation import BLACKOUT_COUNT, evaluate_variant, session_blocks, shared_blackouts
+    from services.fusion.ablation import (
+        BLACKOUT_COUNT,
+        PER_SESSION,
+        evaluate_variant,
+        session_blocks,
+        shared_blackouts,
+    )
 
     cal = d / "calibration.yaml" if calibrated else None
     base, per_session = variant.removesuffix(PER_SESSION), variant.endswith(PER_SESSION)
@@ -181,7 +186,7 @@ def _tasks(d: Path) -> list[tuple[str, str, tuple]]:
 
 def _ablations(calibrated: bool) -> list[tuple[str, str, tuple]]:
     """Every subset and degradation on both continuous sessions (arguments after the folder)."""
-    from services.fusion.ablation import variants
+    from services.fusion.ablation import PER_SESSION, variants
 
     names = [*variants(), *(v + PER_SESSION for v in variants() if v.startswith("blackout"))]
     return [(f"ablation:{s}:{v}", "_task_variant", (s, v, calibrated)) for s in ("teleop", "sweeps") for v in names]

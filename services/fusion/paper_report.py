@@ -220,15 +220,18 @@ def dynamic_md(res: dict[str, Any]) -> list[str]:
 
 def _degraded_order(name: str) -> tuple[int, int]:
     """DEGRADED's order, each blackout's per-session reading after the paper's."""
-    from services.fusion.ablation import DEGRADED
+    from services.fusion.ablation import DEGRADED, PER_SESSION
 
-    base = name.removesuffix("_per_session")
+    base = name.removesuffix(PER_SESSION)
     return (DEGRADED.index(base) if base in DEGRADED else len(DEGRADED), base != name)
 
 
 def _blackouts_note(deg: dict[str, Any]) -> str:
     """How the blackouts were placed, with their counts per session where the report has them."""
-    n = next((d["blackouts"] for name, d in deg.items() if name.startswith("blackout") and "blackouts" in d), {})
+    from services.fusion.ablation import PER_SESSION
+
+    shared = (d for name, d in deg.items() if name.startswith("blackout") and not name.endswith(PER_SESSION))
+    n = next((d["blackouts"] for d in shared if "blackouts" in d), {})
     counts = (
         f" ({n.get('sweeps', '?')} in the programmed session, {n.get('teleop', '?')} in the teleoperated)" if n else ""
     )

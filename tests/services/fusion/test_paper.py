@@ -62,6 +62,21 @@ def test_ablations_say_which_calibration_they_ran_with():
     assert "| full | 1.00 [2.00]" in md
 
 
+def test_the_blackout_rows_say_how_many_and_the_papers_placement_comes_first():
+    row = {"kind": "degraded", "tip_rmse_mm": 1.0, "tip_p95_mm": 2.0, "block_mean_mm": 1.0, "coverage": 1.0}
+    results = {}
+    for scen, shared in (("sweeps", 7), ("teleop", 9)):  # finished in any order: per session first here
+        results[f"ablation:{scen}:blackout10_per_session"] = {**row, "resets": 0, "blackouts": 16}
+        results[f"ablation:{scen}:third"] = {**row, "resets": 0}
+        results[f"ablation:{scen}:blackout10"] = {**row, "resets": 0, "blackouts": shared, "block_mean_mm": 1.5}
+    res = gather(results, {})
+    assert res["degraded"]["blackout10"]["blackouts"] == {"sweeps": 7, "teleop": 9}
+    md = "\n".join(ablation_md(res))
+    assert "(7 in the programmed session, 9 in the teleoperated)" in md
+    names = [ln.split("|")[1].strip() for ln in md.splitlines() if ln.startswith("| ") and "(" in ln]
+    assert names[-3:] == ["third", "blackout10", "blackout10_per_session"]
+
+
 @pytest.mark.slow
 def test_paper_quick_end_to_end(tmp_path):
     out = tmp_path / "paper"
