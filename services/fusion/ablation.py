@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from services.fusion.evaluation import Estimate, block_windows, load_truth, score_continuous
+from services.fusion.evaluation import Estimate, EvaluationError, block_windows, load_truth, score_continuous
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.runner import FusionRunner
@@ -96,7 +96,7 @@ def session_blocks(session: str | Path) -> list[tuple[str, int, int]]:
     """A bench session's scored blocks (`block_windows`), from its `trials` metadata alone."""
     md = read_metadata(session)
     if "trials" not in md:
-        raise ValueError(f"{session}: no 'trials' metadata (not a bench session with ground truth)")
+        raise EvaluationError(f"{session}: no 'trials' metadata (not a bench session with ground truth)")
     return block_windows(json.loads(md["trials"]["json"]))
 
 
