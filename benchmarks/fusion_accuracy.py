@@ -98,7 +98,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
         counts = shared_blackouts([sum(b - a for _, a, b in session_blocks(p)) for p in args.sessions])
     for path, n_blackouts in zip(args.sessions, counts, strict=True):
         truth = load_truth(path)
-        calib = given or Calibration.from_mcap_metadata(read_metadata(path), where=path)
+        calib = given if given is not None else Calibration.from_mcap_metadata(read_metadata(path), where=path)
         msgs = list(iter_inputs(Path(path), {}))
         blocks = block_windows(truth.trials)
         for v in variants:

@@ -22,7 +22,6 @@ nothing large is pickled between processes.
 from __future__ import annotations
 
 import copy
-import json
 import logging
 import os
 import time
@@ -33,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from services.fusion.evaluation import Estimate, EvaluationError, block_windows, load_truth, score_continuous
+from services.fusion.evaluation import Estimate, block_windows, load_truth, read_trials, score_continuous
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.runner import FusionRunner
@@ -94,10 +93,7 @@ def shared_blackouts(lengths_ns: list[int], count: int = BLACKOUT_COUNT) -> list
 
 def session_blocks(session: str | Path) -> list[tuple[str, int, int]]:
     """A bench session's scored blocks (`block_windows`), from its `trials` metadata alone."""
-    md = read_metadata(session)
-    if "trials" not in md:
-        raise EvaluationError(f"{session}: no 'trials' metadata (not a bench session with ground truth)")
-    return block_windows(json.loads(md["trials"]["json"]))
+    return block_windows(read_trials(session))
 
 
 def _add_noise(msg: Any, rng: np.random.Generator) -> Any:

@@ -47,11 +47,17 @@ class Estimate:
     tip_base_m: np.ndarray
 
 
-def load_truth(session: str | Path) -> Truth:
-    md = read_metadata(session)
+def read_trials(session: str | Path, md: dict[str, dict[str, str]] | None = None) -> list[dict[str, Any]]:
+    """A bench session's `trials` metadata (its protocol's timing), from `md` if already read."""
+    md = read_metadata(session) if md is None else md
     if "trials" not in md:
         raise EvaluationError(f"{session}: no 'trials' metadata (not a bench session with ground truth)")
-    trials = json.loads(md["trials"]["json"])
+    return json.loads(md["trials"]["json"])
+
+
+def load_truth(session: str | Path) -> Truth:
+    md = read_metadata(session)
+    trials = read_trials(session, md)
     protocol = md.get("session", {}).get("protocol", "")
     t, tip, rcm = [], [], []
     for rec in read_messages(session, ["bench/robot"]):

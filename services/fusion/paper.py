@@ -303,10 +303,9 @@ def gather(results: dict[str, Any], errors: dict[str, str], ablations_on: str = 
             row = res[key].setdefault(
                 variant, {"tip_rmse_mm": {}, "tip_p95_mm": {}, "block_mean_mm": {}, "coverage": {}, "resets": {}}
             )
-            for m in row:
-                row[m][scen] = r[m]
-            if "blackouts" in r:
-                row.setdefault("blackouts", {})[scen] = r["blackouts"]
+            for m in ("tip_rmse_mm", "tip_p95_mm", "block_mean_mm", "coverage", "resets", "blackouts"):
+                if m in r:
+                    row.setdefault(m, {})[scen] = r[m]
             if variant == "full" and res["ablations_calibration"] == "calibrate":
                 res["dynamic"].setdefault(scen, {})["calibrated"] = r
         elif name.startswith("as_calibrated:"):

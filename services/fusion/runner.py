@@ -223,10 +223,12 @@ class FusionRunner:
         if s is not None:
             counts.update(s.counts)  # Counter.update adds
             nis_sum.update(s.nis)
-        updates = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("updates:")}
-        rejected = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("rejected:")}
+
+        def kind(prefix: str) -> dict[str, int]:  # "updates:vision_tip" -> {"vision_tip": n}
+            return {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith(prefix + ":")}
+
+        updates, rejected, deferred = kind("updates"), kind("rejected"), kind("deferred")
         rejected.update(self.dropped)
-        deferred = {k.split(":", 1)[1]: int(v) for k, v in counts.items() if k.startswith("deferred:")}
         nis = {k: v / max(updates.get(k, 0), 1) for k, v in nis_sum.items()}
         return {
             "updates": updates,
