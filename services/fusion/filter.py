@@ -319,7 +319,7 @@ class TrackingFilter:
     def _apply(self, s: State, name: str, nis: float, dx: np.ndarray) -> None:
         _bump(s.counts, f"updates:{name}")
         _bump(s.nis, name, nis)
-        s.brho += kernels.inject(s.p, s.v, s.R, s.bg, s.ba, dx)
+        s.brho += kernels.inject(s.p, s.v, s.R, s.bg, s.ba, dx, s.P)
 
     def _update_tip(self, s: State, H: np.ndarray, y: np.ndarray, resid_cam: np.ndarray) -> bool:
         """The junction ray's update, a surprising one only once confirmed. A tip whose NIS
@@ -391,14 +391,20 @@ class TrackingFilter:
         free = self.brho_free(s)
         tmap = self.tof_map
         record = None
+        # held: the pose-locked error is unmodelled where the map has learnt nothing (or there is
+        # no map), so the variance grows by up to `tof_unmapped_var_factor` there
+        r_var = self._tof_r if free else self._tof_r_held * (1.0 + self.prm.tof_unmapped_var_factor)
         if tmap is not None:
             if not free:
                 c, weight = tmap.predict(s.t_ns, s.R, s.p, s.brho)
                 rho += c - s.brho
+                w0 = tmap.prior_weight
+                unmapped = w0 / (weight + w0) if weight + w0 > 0 else 1.0
+                r_var = self._tof_r_held * (1.0 + self.prm.tof_unmapped_var_factor * unmapped)
             elif s.t_ns - s.t_init_ns >= self._map_settle_ns:  # not from a state still converging
                 record = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
         y = np.array([range_m - rho])
-        ok = self._update(s, H, y, self._tof_r if free else self._tof_r_held, self.prm.gate_chi2_1, "tof")
+        ok = self._update(s, H, y, r_var, self.prm.gate_chi2_1, "tof")
         if ok:
             s.tof_last = (s.t_ns, range_m)
             if record is not None:

@@ -295,8 +295,12 @@ def update(
 
 
 @njit(cache=True)
-def inject(p: np.ndarray, v: np.ndarray, R: np.ndarray, bg: np.ndarray, ba: np.ndarray, dx: np.ndarray) -> float:
-    """Error state dx (16,) into the nominal state, in place; returns the b_rho increment."""
+def inject(
+    p: np.ndarray, v: np.ndarray, R: np.ndarray, bg: np.ndarray, ba: np.ndarray, dx: np.ndarray, P: np.ndarray
+) -> float:
+    """Error state dx (16,) into the nominal state, in place; returns the b_rho increment.
+    P is carried to the new estimate as the covariance of the invariant error (`reset`)."""
+    R0 = R.copy()
     dR = np.empty((3, 3))
     _exp(dx[6], dx[7], dx[8], dR)
     R[:, :] = _mm(R, dR)
@@ -305,7 +309,55 @@ def inject(p: np.ndarray, v: np.ndarray, R: np.ndarray, bg: np.ndarray, ba: np.n
         v[i] += dx[3 + i]
         bg[i] += dx[9 + i]
         ba[i] += dx[12 + i]
+    reset(P, R0, dR, dx[0:3], dx[3:6])
     return dx[15]
+
+
+@njit(cache=True)
+def reset(P: np.ndarray, R0: np.ndarray, dR: np.ndarray, dp: np.ndarray, dv: np.ndarray) -> None:
+    """P (16, 16), in place, from the estimate (p, v, R0) to (p + dp, v + dv, R0 dR).
+
+    The filter's covariance is that of the right-invariant error (world-frame rotation xi_R,
+    p - xi_R x (p - r), v - xi_R x v about the RCM r): local coordinates serve the Jacobians,
+    dp = xi_p + xi_R x q, dv = xi_v + xi_R x v, dtheta = R^T xi_R. A rotation of the whole
+    state about the vertical through the RCM (heading, which only vision and the ToF observe)
+    is then one fixed direction of the error whatever the estimate, so the RCM and gravity
+    updates, whose Jacobians are blind to it at their own estimate, can never feed it
+    information. Keeping the same P across a change of estimate in local coordinates would
+    (each update turns that direction a little; over minutes without vision the heading sigma
+    settled at 1 deg while the heading walked off by tens). The change of coordinates
+    G = T(new) T(old)^-1 is the identity but for dtheta' = dR^T dtheta,
+    dp' = dp - [dp]x R0 dtheta, dv' = dv - [dv]x R0 dtheta: P <- G P G^T."""
+    M = np.zeros((9, 3))
+    for i in range(3):
+        for j in range(3):
+            M[6 + i, j] = dR[j, i]
+    # -[d]x R0, for d = dp (rows 0:3) and dv (rows 3:6)
+    for blk in range(2):
+        d = dp if blk == 0 else dv
+        for j in range(3):
+            c0, c1, c2 = R0[0, j], R0[1, j], R0[2, j]
+            M[3 * blk + 0, j] = -(d[1] * c2 - d[2] * c1)
+            M[3 * blk + 1, j] = -(d[2] * c0 - d[0] * c2)
+            M[3 * blk + 2, j] = -(d[0] * c1 - d[1] * c0)
+    # rows: GP[i] = P[i] + M[i] P[6:9] (i < 6), GP[6 + i] = M[6 + i] P[6:9]
+    Pt = P[6:9, :].copy()
+    for i in range(9):
+        for j in range(N):
+            acc = M[i, 0] * Pt[0, j] + M[i, 1] * Pt[1, j] + M[i, 2] * Pt[2, j]
+            if i < 6:
+                P[i, j] += acc
+            else:
+                P[i, j] = acc
+    # columns, the same on (G P) G^T
+    Pc = P[:, 6:9].copy()
+    for j in range(9):
+        for i in range(N):
+            acc = Pc[i, 0] * M[j, 0] + Pc[i, 1] * M[j, 1] + Pc[i, 2] * M[j, 2]
+            if j < 6:
+                P[i, j] += acc
+            else:
+                P[i, j] = acc
 
 
 @njit(cache=True)
@@ -357,7 +409,7 @@ def gyro_step(
         r_var[0] = r_var[1] = k[4]
         status, nis, dx = update(P, H, y, r_var, k[5], freeze_last)
         if status == 0:
-            dbrho = inject(p, v, R, bg, ba, dx)
+            dbrho = inject(p, v, R, bg, ba, dx, P)
     return status, nis, dbrho, health(p, v, R, P, k[6], k[7])
 
 

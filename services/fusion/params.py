@@ -102,6 +102,12 @@ class Params:
     tof_map_bin_ms: float = 50.0
     tof_map_window_s: float = 120.0
     tof_map_prior_weight: float = 2.0
+    # while b_rho is held the ToF's variance is tof_sigma_held^2 (1 + k w0 / (w + w0)), w the
+    # map's kernel weight at the pose and w0 its prior weight: where the map learnt nothing (and
+    # with no map, as without vision) the pose-locked error is unmodelled. k = 3 (28 mm per
+    # sample there) on tuning seeds 1000-1003: IMU+ToF teleop 32.5 -> 24.0 mm (geometric mean),
+    # one frame in three on teleop 1.36 -> 1.29, 10 s blackouts within 0.005 mm
+    tof_unmapped_var_factor: float = 3.0
     # it records only from a state tracked this long since its (re)initialisation, not one
     # still converging from a single frame (a runner's reset also forgets what the map took
     # from the diverging state after its last vision tip)

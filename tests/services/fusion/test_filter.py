@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from services.fusion import kernels
-from services.fusion.filter import N, TrackingFilter, skew
+from services.fusion.filter import E_Z, N, TrackingFilter, skew
 from services.fusion.params import Params
 from tiplog import vision_geometry as vg
 from tiplog.calibration import Calibration
@@ -213,6 +213,65 @@ def test_the_compiled_gyro_step_equals_propagate_then_the_rcm_update():
     assert a.brho == pytest.approx(b.brho, abs=1e-12)
 
 
+def _invariant_T(p: np.ndarray, v: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Local error = T @ right-invariant error: dp = xi_p - [q]x xi_R, dv = xi_v - [v]x xi_R,
+    dtheta = R^T xi_R (q = p - RCM)."""
+    T = np.eye(N)
+    T[0:3, 6:9] = -skew(p - RCM)
+    T[3:6, 6:9] = -skew(v)
+    T[6:9, 6:9] = R.T
+    return T
+
+
+def test_reset_carries_the_covariance_of_the_invariant_error_to_the_new_estimate():
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(N, N))
+    P = A @ A.T + np.eye(N)
+    R0, p0, v0 = so3_exp(rng.normal(size=3)), RCM + rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.05
+    dtheta, dp, dv = rng.normal(size=3) * 0.05, rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+    dR = so3_exp(dtheta)
+    G = _invariant_T(p0 + dp, v0 + dv, R0 @ dR) @ np.linalg.inv(_invariant_T(p0, v0, R0))
+    out = P.copy()
+    kernels.reset(out, R0, dR, dp, dv)
+    np.testing.assert_allclose(out, G @ P @ G.T, rtol=1e-10, atol=1e-12)
+
+
+def _heading_information(s, rcm: np.ndarray) -> float:
+    """Information along the turn of the whole state about the vertical through the RCM."""
+    n = np.zeros(N)
+    n[0:3] = np.cross(E_Z, s.p - rcm)
+    n[3:6] = np.cross(E_Z, s.v)
+    n[6:9] = s.R.T @ E_Z
+    return float(n @ np.linalg.solve(s.P, n))
+
+
+def test_the_rcm_and_gravity_updates_tell_nothing_about_the_heading():
+    """Turning the whole state about the vertical through the RCM changes neither prediction, so
+    their updates must leave the information along that turn as it was, however far they move
+    the estimate. (With the covariance kept as it was across each change of estimate, every
+    update fed it a little: without vision the heading sigma settled at 1 deg while the heading
+    walked off by tens of degrees.)"""
+    c = _calib()
+    R, p = _pose()
+    f = TrackingFilter(c, Params(), frozenset({"imu"}))
+    f_true = c.R_tool_imu.T @ R.T @ (-G)
+    s = f.new_state(0, R, 0.14, f_true)
+    s.p = s.p + np.array([0.003, -0.002, 0.001])  # an estimate the updates have to move
+    s.v = np.array([0.01, 0.0, -0.02])
+    s.R = s.R @ so3_exp(np.array([0.01, -0.02, 0.005]))
+    s.f_imu, s.w_imu = f_true, np.zeros(3)
+    p0, R0 = s.p.copy(), s.R.copy()
+    for _ in range(20):
+        before = _heading_information(s, f.rcm)
+        H, y = kernels.rcm_jacobian(s.R, s.p, f.rcm)
+        assert f._update(s, H, y, np.full(2, 1e-8), 1e9, "rcm")
+        assert _heading_information(s, f.rcm) == pytest.approx(before, rel=1e-8)
+        before = _heading_information(s, f.rcm)
+        assert f.update_gravity(s)
+        assert _heading_information(s, f.rcm) == pytest.approx(before, rel=1e-8)
+    assert np.linalg.norm(s.p - p0) > 1e-3 and np.linalg.norm(so3_exp(np.zeros(3)) - R0.T @ s.R) > 1e-3
+
+
 def _run_static(seconds: float, bias_imu: np.ndarray, seed: int = 1):
     c = _calib()
     R, p = _pose()
@@ -409,6 +468,54 @@ def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
         moved[use_map] = abs(float(held.R[:, 2] @ (held.p - f.rcm)) - L0)
         assert held.counts.get("updates:tof_mapped", 0) == (200 if use_map else 0)
     assert moved[True] < 0.25 * moved[False] and moved[False] > 0.15e-3, moved
+
+
+def _held_tof_matches(f: TrackingFilter, s, r_var: float) -> bool:
+    """Whether a held ToF range with no innovation (the state stays, P shrinks) used the
+    measurement variance r_var: P against the Joseph form with b_rho given no gain."""
+    c = f.c
+    H, rho, _ = kernels.tof_jacobian(
+        s.R, s.p, s.brho, c.tof_plane_normal_base, c.tof_plane_h_m, c.tof_origin_tool_m, c.tof_beam_tool
+    )
+    if f.tof_map is not None:
+        rho += f.tof_map.predict(s.t_ns, s.R, s.p, s.brho)[0] - s.brho
+    h, P = H[0], s.P.copy()
+    assert f.update_tof(s, rho)
+    K = P @ h / (h @ P @ h + r_var)
+    K[-1] = 0.0
+    A = np.eye(N) - np.outer(K, h)
+    return np.allclose(s.P, A @ P @ A.T + r_var * np.outer(K, K), rtol=1e-9, atol=1e-15)
+
+
+def test_held_tof_weighs_less_where_the_map_learnt_nothing():
+    """While b_rho is held the range's pose-locked error is known only where the map learnt it:
+    at such a pose the held variance, elsewhere (or with no map at all, as without vision)
+    `tof_unmapped_var_factor` + 1 times it."""
+    f, s, R, p = _run_static(3.0, np.zeros(3))
+    held_var = (f.prm.tof_sigma_held_mm * 1e-3) ** 2
+    k = f.prm.tof_unmapped_var_factor
+    assert k > 0
+    rho = _range(f.c, R, p)
+    learn = s.copy()
+    for i in range(300):
+        learn.t_ns = learn.last_tip_ns = s.t_ns + i * 10_000_000
+        f.update_tof(learn, rho)
+    here = s.copy()
+    here.t_ns = learn.t_ns + 10_000_000
+    here.last_tip_ns = here.t_ns - 3_000_000_000
+    weight = f.tof_map.predict(here.t_ns, here.R, here.p, 0.0)[1]
+    w0 = f.prm.tof_map_prior_weight
+    assert weight > 10 * w0
+    expected_here = held_var * (1 + k * w0 / (weight + w0))
+    assert _held_tof_matches(f, here.copy(), expected_here)
+    assert not _held_tof_matches(f, here.copy(), held_var * (1 + k))
+    elsewhere = here.copy()
+    elsewhere.R = elsewhere.R @ so3_exp(np.array([0.0, 0.0, math.radians(20.0)]))  # rolled: unseen
+    assert f.tof_map.predict(elsewhere.t_ns, elsewhere.R, elsewhere.p, 0.0)[1] < 1e-6
+    assert _held_tof_matches(f, elsewhere, held_var * (1 + k))
+    no_vision = TrackingFilter(f.c, f.prm, frozenset({"imu", "tof"}))
+    assert no_vision.tof_map is None
+    assert _held_tof_matches(no_vision, here.copy(), held_var * (1 + k))
 
 
 def test_held_tof_offset_moves_through_no_other_update():
