@@ -88,7 +88,7 @@
     const sentMs = (view.lastSent - view.hello.t0_ns) / 1e6;
     text("v-display-lag", fmt(sentMs - tNewest, 1));
     const locked = !!s.vision_locked;
-    text("lock", locked ? "vision: locked" : "vision: no lock");
+    text("lock", locked ? "vision: locked" : lockLost(s));
     setClass($("lock"), locked ? "pill ok" : "pill bad");
     text("e-now", fmt(view.est.last(c.err_mm), 2));
     text("e-radial", fmt(view.est.last(c.err_radial_mm), 2));
@@ -97,6 +97,14 @@
     text("trail-count", String(view.est.n));
     text("trail-span", fmt((tNewest - t0) / 1000, 1));
     text("trail-skipped", String(view.skipped));
+  }
+
+  // How long the estimate has run without vision: without it only the gyro carries the
+  // heading and the error grows with the time (docs/fusion.md), so the time tells how far to
+  // trust the tip. (No vision frame in this filter's state, e.g. after a reset: no time.)
+  function lockLost(s) {
+    const last = Number(s.last_vision_stamp_ns || 0), stamp = Number((s.header && s.header.stamp_ns) || 0);
+    return last > 0 && stamp >= last ? `vision: no lock for ${fmt((stamp - last) / 1e9, 1)} s` : "vision: no lock";
   }
 
   function fillTable(tbody, rows) {

@@ -73,6 +73,8 @@ class StatePublisher:
             vision_locked=int(t_s / 2.0) % 2 == 0,
             attitude_sigma_deg=0.3,
         )
+        # locked for 2 s, then 2 s without vision since the last frame at the window's start
+        st.last_vision_stamp_ns = msg.header.stamp_ns if st.vision_locked else int(t_s / 2.0) * 2_000_000_000
         st.header.stamp_ns = msg.header.stamp_ns
         st.header.frame_id = "base"
         st.tip_m.x, st.tip_m.y, st.tip_m.z = (tip + wobble_m).tolist()
@@ -238,3 +240,11 @@ def signed_in(browser, system: LiveSystem, token: str, viewport=(1440, 1000)):
     page.wait_for_function("window.tiplog && window.tiplog.est && window.tiplog.est.n > 100", timeout=30_000)
     page.errors = errors
     return ctx, page
+
+
+def lock_text(st: fusion_pb2.FusionState) -> str:
+    """The vision pill's text for a state, as the page computes it (in doubles, as JavaScript)."""
+    if st.vision_locked:
+        return "vision: locked"
+    last, stamp = float(st.last_vision_stamp_ns), float(st.header.stamp_ns)
+    return f"vision: no lock for {(stamp - last) / 1e9:.1f} s" if last > 0 and stamp >= last else "vision: no lock"

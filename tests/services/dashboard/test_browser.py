@@ -12,7 +12,14 @@ import threading
 import pytest
 
 from tests.conftest import ROOT
-from tests.services.dashboard.live_system import OPERATOR_TOKEN, VIEWER_TOKEN, LiveSystem, signed_in, start_system
+from tests.services.dashboard.live_system import (
+    OPERATOR_TOKEN,
+    VIEWER_TOKEN,
+    LiveSystem,
+    lock_text,
+    signed_in,
+    start_system,
+)
 from tiplog.mcap_io import read_metadata
 from tiplog.v1 import recorder_pb2
 
@@ -53,7 +60,7 @@ def test_numbers_match_the_published_state_and_screenshot(browser, system, artif
                 "v-tip": " / ".join(f"{v:.2f}" for v in tip_mm),
                 "v-fusion-lag": f"{last.lag_ms:.1f}",
             }
-            assert page.text_content("#lock") == ("vision: locked" if last.vision_locked else "vision: no lock")
+            assert page.text_content("#lock") == lock_text(last)
             # The error panel against the robot: the stand-in's wobble is at most ~1.5 mm. (The
             # newest state may still lack its bracketing robot samples: the RMS is checked.)
             page.wait_for_function("document.getElementById('e-count').textContent !== '0'", timeout=5_000)

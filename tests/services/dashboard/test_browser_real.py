@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from tests.services.dashboard.live_system import OPERATOR_TOKEN, LiveSystem, signed_in, start_system
+from tests.services.dashboard.live_system import OPERATOR_TOKEN, LiveSystem, lock_text, signed_in, start_system
 from tiplog.bus import SampleInfo
 from tiplog.v1 import fusion_pb2
 
@@ -64,7 +64,7 @@ def test_numbers_are_a_published_state_of_live_fusion(browser, real_system, arti
             f"{st.lag_ms:.1f}",
         ]
         assert tip == " / ".join(f"{v:.2f}" for v in tip_mm)
-        assert lock == ("vision: locked" if st.vision_locked else "vision: no lock")
+        assert lock == lock_text(st)
         n0 = page.evaluate("window.tiplog.est.n")
         page.wait_for_function("n => window.tiplog.est.n >= n + 400", arg=n0, timeout=20_000)
         page.wait_for_function("document.getElementById('e-count').textContent !== '0'", timeout=10_000)
