@@ -314,8 +314,8 @@ def inject(
 
 
 @njit(cache=True)
-def reset(P: np.ndarray, R0: np.ndarray, dR: np.ndarray, dp: np.ndarray, dv: np.ndarray) -> None:
-    """P (16, 16), in place, from the estimate (p, v, R0) to (p + dp, v + dv, R0 dR).
+def reset(P: np.ndarray, R0: np.ndarray, dR: np.ndarray, step_p: np.ndarray, step_v: np.ndarray) -> None:
+    """P (16, 16), in place, from the estimate (p, v, R0) to (p + step_p, v + step_v, R0 dR).
 
     The filter's covariance is that of the right-invariant error (world-frame rotation xi_R,
     p - xi_R x (p - r), v - xi_R x v about the RCM r): local coordinates serve the Jacobians,
@@ -327,14 +327,14 @@ def reset(P: np.ndarray, R0: np.ndarray, dR: np.ndarray, dp: np.ndarray, dv: np.
     (each update turns that direction a little; over minutes without vision the heading sigma
     settled at 1 deg while the heading walked off by tens). The change of coordinates
     G = T(new) T(old)^-1 is the identity but for dtheta' = dR^T dtheta,
-    dp' = dp - [dp]x R0 dtheta, dv' = dv - [dv]x R0 dtheta: P <- G P G^T."""
+    dp' = dp - [step_p]x R0 dtheta, dv' = dv - [step_v]x R0 dtheta: P <- G P G^T."""
     M = np.zeros((9, 3))
     for i in range(3):
         for j in range(3):
             M[6 + i, j] = dR[j, i]
-    # -[d]x R0, for d = dp (rows 0:3) and dv (rows 3:6)
+    # -[d]x R0, for d = step_p (rows 0:3) and step_v (rows 3:6)
     for blk in range(2):
-        d = dp if blk == 0 else dv
+        d = step_p if blk == 0 else step_v
         for j in range(3):
             c0, c1, c2 = R0[0, j], R0[1, j], R0[2, j]
             M[3 * blk + 0, j] = -(d[1] * c2 - d[2] * c1)
