@@ -30,8 +30,7 @@ from services.fusion.ablation import (
     DEGRADED,
     SUBSETS,
     run_variant,
-    session_blocks,
-    shared_blackouts,
+    sessions_blackouts,
     variant_inputs,
 )
 from services.fusion.evaluation import (
@@ -95,7 +94,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
     results = []
     counts = [BLACKOUT_COUNT] * len(args.sessions)
     if args.shared_blackouts:
-        counts = shared_blackouts([sum(b - a for _, a, b in session_blocks(p)) for p in args.sessions])
+        counts = sessions_blackouts(args.sessions)
     for path, n_blackouts in zip(args.sessions, counts, strict=True):
         truth = load_truth(path)
         calib = given if given is not None else Calibration.from_mcap_metadata(read_metadata(path), where=path)

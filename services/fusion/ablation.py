@@ -96,6 +96,11 @@ def session_blocks(session: str | Path) -> list[tuple[str, int, int]]:
     return block_windows(read_trials(session))
 
 
+def sessions_blackouts(sessions: list[str | Path], count: int = BLACKOUT_COUNT) -> list[int]:
+    """`shared_blackouts` over bench sessions, by the length of their scored blocks."""
+    return shared_blackouts([sum(b - a for _, a, b in session_blocks(p)) for p in sessions], count)
+
+
 def _add_noise(msg: Any, rng: np.random.Generator) -> Any:
     """The tangent planes' white noise made five times the recording's (the paper "multiplied
     the vision axis noise fivefold"); the junction ray is left as recorded."""

@@ -391,18 +391,19 @@ class TrackingFilter:
         free = self.brho_free(s)
         tmap = self.tof_map
         record = None
-        # held: the pose-locked error is unmodelled where the map has learnt nothing (or there is
-        # no map), so the variance grows by up to `tof_unmapped_var_factor` there
-        r_var = self._tof_r if free else self._tof_r_held * (1.0 + self.prm.tof_unmapped_var_factor)
-        if tmap is not None:
-            if not free:
+        r_var = self._tof_r
+        if not free:
+            # the pose-locked error is unmodelled where the map learnt nothing (or there is no
+            # map), so the held variance grows by up to `tof_unmapped_var_factor` there
+            unmapped = 1.0
+            if tmap is not None:
                 c, weight = tmap.predict(s.t_ns, s.R, s.p, s.brho)
                 rho += c - s.brho
                 w0 = tmap.prior_weight
                 unmapped = w0 / (weight + w0) if weight + w0 > 0 else 1.0
-                r_var = self._tof_r_held * (1.0 + self.prm.tof_unmapped_var_factor * unmapped)
-            elif s.t_ns - s.t_init_ns >= self._map_settle_ns:  # not from a state still converging
-                record = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
+            r_var = self._tof_r_held * (1.0 + self.prm.tof_unmapped_var_factor * unmapped)
+        elif tmap is not None and s.t_ns - s.t_init_ns >= self._map_settle_ns:  # not from a state still converging
+            record = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
         y = np.array([range_m - rho])
         ok = self._update(s, H, y, r_var, self.prm.gate_chi2_1, "tof")
         if ok:

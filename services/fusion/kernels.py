@@ -328,18 +328,10 @@ def reset(P: np.ndarray, R0: np.ndarray, dR: np.ndarray, step_p: np.ndarray, ste
     settled at 1 deg while the heading walked off by tens). The change of coordinates
     G = T(new) T(old)^-1 is the identity but for dtheta' = dR^T dtheta,
     dp' = dp - [step_p]x R0 dtheta, dv' = dv - [step_v]x R0 dtheta: P <- G P G^T."""
-    M = np.zeros((9, 3))
-    for i in range(3):
-        for j in range(3):
-            M[6 + i, j] = dR[j, i]
-    # -[d]x R0, for d = step_p (rows 0:3) and step_v (rows 3:6)
-    for blk in range(2):
-        d = step_p if blk == 0 else step_v
-        for j in range(3):
-            c0, c1, c2 = R0[0, j], R0[1, j], R0[2, j]
-            M[3 * blk + 0, j] = -(d[1] * c2 - d[2] * c1)
-            M[3 * blk + 1, j] = -(d[2] * c0 - d[0] * c2)
-            M[3 * blk + 2, j] = -(d[0] * c1 - d[1] * c0)
+    M = np.empty((9, 3))  # G's dtheta columns: -[step_p]x R0, -[step_v]x R0, dR^T
+    M[0:3] = -_mm(_skew(step_p), R0)
+    M[3:6] = -_mm(_skew(step_v), R0)
+    M[6:9] = dR.T
     # rows: GP[i] = P[i] + M[i] P[6:9] (i < 6), GP[6 + i] = M[6 + i] P[6:9]
     Pt = P[6:9, :].copy()
     for i in range(9):

@@ -129,20 +129,13 @@ def _task_variant(d: Path, scen: str, variant: str, calibrated: bool = False) ->
     """One subset or degradation. Blackouts as the paper placed them: its sixteen shared over
     both continuous sessions in proportion to their blocks (`blackout10`), or, the harsher
     reading, sixteen in each session (`blackout10_per_session`)."""
-    from services.fusion.ablation import (
-        BLACKOUT_COUNT,
-        PER_SESSION,
-        evaluate_variant,
-        session_blocks,
-        shared_blackouts,
-    )
+    from services.fusion.ablation import BLACKOUT_COUNT, PER_SESSION, evaluate_variant, sessions_blackouts
 
     cal = d / "calibration.yaml" if calibrated else None
     base, per_session = variant.removesuffix(PER_SESSION), variant.endswith(PER_SESSION)
     n = BLACKOUT_COUNT
     if base.startswith("blackout") and not per_session:
-        lengths = [sum(b - a for _, a, b in session_blocks(d / "sessions" / f"{s}.mcap")) for s in CONTINUOUS]
-        n = shared_blackouts(lengths)[CONTINUOUS.index(scen)]
+        n = sessions_blackouts([d / "sessions" / f"{s}.mcap" for s in CONTINUOUS])[CONTINUOUS.index(scen)]
     r = evaluate_variant(d / "sessions" / f"{scen}.mcap", base, cal, series=base == "full", blackouts=n)
     r["variant"] = variant
     return r
