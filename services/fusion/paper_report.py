@@ -275,7 +275,10 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
         )
     lines.append(
         "\nmm; subsets: pooled RMSE with p95 in brackets; degraded: mean of the blocks' RMSE as the paper "
-        f"reports it, pooled in parentheses. Blackouts: {_blackouts_note(deg)} "
+        "reports it, pooled in parentheses. IMU+ToF: without vision only the ToF sees the heading, and "
+        "weakly (`python -m benchmarks.tof_heading`), so each session's gyro walk and the ToF's and "
+        "accelerometer's pose-locked errors set its error, which differs several-fold between seeds "
+        f"(docs/fusion.md). Blackouts: {_blackouts_note(deg)} "
         '"covers": the share of the '
         "scored time with an estimate, where the filter published nothing for a while (after a reset without "
         "vision to restart from); the RMSE is over the rest. Calibration: "
