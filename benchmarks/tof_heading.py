@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from services.bench.sensors.calibration import BenchConstants
-from services.fusion.evaluation import EvaluationError, block_windows, load_truth
-from tiplog.mcap_io import read_messages, read_metadata
+from services.bench.report.data import load, truth_p, truth_R
+from services.fusion.evaluation import EvaluationError, block_windows
+from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError
 
 TOF_VALID = 1
@@ -38,48 +38,22 @@ STEP_DEG = 0.1
 STEP_M = 1e-3
 
 
-def _tool_orientation(session: Path) -> tuple[np.ndarray, Rotation]:
-    t, q = [], []
-    for rec in read_messages(session, ["bench/robot"]):
-        o = rec.message.tool_pose.orientation
-        t.append(rec.message.header.stamp_ns)
-        q.append((o.x, o.y, o.z, o.w))
-    return np.asarray(t, np.int64), Rotation.from_quat(q)
-
-
-def _ranges(session: Path, latency_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    t, r = [], []
-    for rec in read_messages(session, ["device/tof"]):
-        m = rec.message
-        if m.status == TOF_VALID:
-            t.append(m.header.stamp_ns - latency_ns)
-            r.append(m.range_raw_mm * 1e-3)
-    return np.asarray(t, np.int64), np.asarray(r)
-
-
 def analyse(session: Path) -> list[dict]:
-    md = read_metadata(session)
-    if "calibration_truth" not in md:
+    if "calibration_truth" not in read_metadata(session):
         raise EvaluationError(f"{session}: not a bench session (no calibration_truth)")
-    const = BenchConstants.from_dict(json.loads(md["calibration_truth"]["json"]))
-    truth = load_truth(session)
-    t_rot, rot = _tool_orientation(session)
-    t, rng = _ranges(session, int(round(const.latency_ms.get("tof", 0.0) * 1e6)))
-    inside = (t >= max(t_rot[0], truth.t_ns[0])) & (t <= min(t_rot[-1], truth.t_ns[-1]))
-    t, rng = t[inside], rng[inside]
-    # the orientation at the range's time: the nearest robot sample (1 kHz)
-    j = np.clip(np.searchsorted(t_rot, t), 1, len(t_rot) - 1)
-    j -= (t - t_rot[j - 1]) < (t_rot[j] - t)
-    R = rot[j].as_matrix()
-    p = np.stack([np.interp(t, truth.t_ns, truth.tip_base_m[:, k]) for k in range(3)], 1)
-    rcm = np.stack([np.interp(t, truth.t_ns, truth.rcm_base_m[:, k]) for k in range(3)], 1)
+    s = load(session)  # the bench report's reader: truth constants, robot poses, sensor arrays
+    const, tof = s.truth, s.streams["tof"]
+    t = tof["t"] - int(round(const.latency_ms.get("tof", 0.0) * 1e6))  # event time
+    ok = (tof["s"] == TOF_VALID) & (t >= s.robot_t[0]) & (t <= s.robot_t[-1])
+    t, rng = t[ok], tof["v"][ok] * 1e-3
+    R, p, rcm = truth_R(s, t), truth_p(s, t), const.rcm_base_m
     rho = const.tof_range_m(R, p)
     Rz = Rotation.from_euler("z", STEP_DEG, degrees=True).as_matrix()
     d_heading = (const.tof_range_m(Rz @ R, rcm + (p - rcm) @ Rz.T) - rho) / STEP_DEG * 1e3  # mm/deg
     d_depth = (const.tof_range_m(R, p + STEP_M * R[:, :, 2]) - rho) / STEP_M  # mm/mm
     err = (rng - rho) * 1e3
     out = []
-    for name, a, b in block_windows(truth.trials):
+    for name, a, b in block_windows(s.trials):
         k = (t >= a) & (t < b) & np.isfinite(rho) & np.isfinite(d_heading) & np.isfinite(d_depth)
         if k.sum() < 10:
             continue
