@@ -61,7 +61,7 @@ class State:
 
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
-        "gyro_n", "last_grav_ns", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
+        "gyro_n", "accel_n", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
         "t_init_ns", "tof_last", "rest", "tip_held",
     )  # fmt: skip
 
@@ -69,7 +69,7 @@ class State:
         # written out, not looped over the slots: a snapshot is taken at every gyro sample
         s = State.__new__(State)
         s.t_ns, s.brho, s.gyro_n, s.t_init_ns = self.t_ns, self.brho, self.gyro_n, self.t_init_ns
-        s.last_grav_ns, s.last_tip_ns, s.last_vision_ns = self.last_grav_ns, self.last_tip_ns, self.last_vision_ns
+        s.accel_n, s.last_tip_ns, s.last_vision_ns = self.accel_n, self.last_tip_ns, self.last_vision_ns
         s.vis_reject_run, s.reacq, s.tof_last = self.vis_reject_run, self.reacq, self.tof_last
         s.tip_held = self.tip_held
         s.p, s.v, s.R, s.P = self.p.copy(), self.v.copy(), self.R.copy(), self.P.copy()
@@ -119,7 +119,7 @@ class TrackingFilter:
         self.plane_var = (p.vision_plane_sigma_deg * DEG) ** 2
         self.offset_var = (p.vision_offset_sigma_mm * 1e-3) ** 2
         self.ray_var = (p.vision_ray_sigma_mm * 1e-3) ** 2
-        self.grav_period_ns = int(1e9 / p.gravity_rate_hz) if p.gravity_rate_hz > 0 else None
+        self._grav_k = np.array([p.gravity_sigma_deg * DEG, p.gravity_sigma_per_excess * DEG, p.gate_chi2_3])
         Q = np.zeros(N)
         if self.imu:
             Q[IV] = self.q_acc
@@ -191,7 +191,7 @@ class TrackingFilter:
         s.alpha_tool = np.zeros(3)
         s.rest = kernels.rest_init()
         s.gyro_n = 0
-        s.last_grav_ns = -(1 << 62)
+        s.accel_n = 0
         s.last_tip_ns = -(1 << 62)
         s.last_vision_ns = -(1 << 62)
         s.vis_reject_run = 0
@@ -288,17 +288,37 @@ class TrackingFilter:
         return self._why(health, s)
 
     def on_accel(self, s: State, t_ns: int, f_imu: np.ndarray) -> None:
-        """Hold the sample for propagation; a gravity update at gravity_rate_hz, applied at the
-        state's time (at most one gyro period earlier: far below its noise)."""
+        """Hold the sample for propagation; every `gravity_every`-th sample, the gravity update
+        at the state's time (at most one gyro period earlier: far below its noise), propagation
+        and update in one compiled call (`kernels.gravity_step`), the same maths as `propagate`
+        and `update_gravity`."""
         if not self.imu:
             return
         s.f_imu = np.asarray(f_imu, float)
         if self.rest_on:
             kernels.rest_sample(s.rest, s.f_imu, t_ns * 1e-9, 1, self._rest_k)
-        if self.grav_period_ns is not None and t_ns - s.last_grav_ns >= self.grav_period_ns:
-            s.last_grav_ns = int(t_ns)
+        s.accel_n += 1
+        every = self.prm.gravity_every
+        if not every or s.accel_n % every:
+            return
+        if self.propagate_apart:
             self.propagate(s, t_ns)
             self.update_gravity(s)
+            return
+        dt = (t_ns - s.t_ns) * 1e-9
+        if dt > 0.0:
+            s.t_ns = int(t_ns)
+        free = self.brho_free(s)
+        status, nis, dbrho = kernels.gravity_step(
+            s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
+            self._Q if free else self._Q_held, self._gyro_k, dt, True, self._grav_k, not free,
+        )  # fmt: skip
+        if status == 0:
+            s.counts["updates:gravity"] = s.counts.get("updates:gravity", 0) + 1
+            s.nis["gravity"] = s.nis.get("gravity", 0) + nis
+            s.brho += dbrho
+        else:
+            s.counts["rejected:gravity:innovation"] = s.counts.get("rejected:gravity:innovation", 0) + 1
 
     # ------------------------------------------------------------------ updates
     def brho_free(self, s: State) -> bool:

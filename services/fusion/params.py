@@ -82,7 +82,10 @@ class Params:
     rcm_every: int = 1  # RCM pseudo-measurement every n-th gyro sample
     gravity_sigma_deg: float = 1.0
     gravity_sigma_per_excess: float = 20.0  # sigma grows by this many deg per unit | |a|/g - 1 |
-    gravity_rate_hz: float = 20.0
+    # every n-th accelerometer sample (0: none). Each sample's tilt noise is white (0.3-0.55 deg),
+    # so every sample at the same standard deviation beats fewer, each trusted more: at 240 Hz
+    # (from 20) full fusion went 0.881 / 0.964 -> 0.867 / 0.909 mm on tuning seeds 1000-1003
+    gravity_every: int = 1
     # ToF per sample: 3.2 mm white + 3 mm pose-locked at 100 Hz, inflated for the correlation;
     # weighed less while vision tips also give the depth (the pose-locked part then only adds
     # error), more while b_rho is held and the ToF is the only depth (blackouts, junction hidden)
@@ -168,7 +171,7 @@ class Params:
                 raise ParamsError(f"fusion parameter {f.name}: must be a finite number (got {v!r})")
             if v < 0:
                 raise ParamsError(f"fusion parameter {f.name}: must be >= 0 (got {v})")
-        for name in ("rcm_every", "alpha_window"):
+        for name in ("rcm_every", "alpha_window"):  # gravity_every may be 0: no gravity updates
             if getattr(self, name) < 1:
                 raise ParamsError(f"fusion parameter {name}: must be >= 1 (got {getattr(self, name)})")
         for name in _POSITIVE:

@@ -183,11 +183,12 @@ def test_gravity_jacobian_is_the_derivative_of_its_prediction():
     assert np.abs(H[:, 6:9]).max() > 1.0 and np.array_equal(H[:, 12:15], np.eye(3))
 
 
-def test_the_compiled_gyro_step_equals_propagate_then_the_rcm_update():
+def test_the_compiled_gyro_and_gravity_steps_equal_propagate_then_the_update():
     """`kernels.gyro_step` (propagation, angular acceleration and the RCM update in one call)
-    against the same sample taken through `propagate` and `_update`, with a stall longer than
-    the IMU gap, stamps bunched closer than the angular-acceleration span, and both b_rho
-    modes (free after the junction, held once the offset window has passed)."""
+    and `kernels.gravity_step` (propagation and the gravity update) against the same samples
+    taken through `propagate`, `_update` and `update_gravity`, with a stall longer than the IMU
+    gap, stamps bunched closer than the angular-acceleration span, and both b_rho modes (free
+    after the junction, held once the offset window has passed)."""
     c = _calib()
     R, p = _pose()
     f_true = c.R_tool_imu.T @ R.T @ (-G)
@@ -205,8 +206,9 @@ def test_the_compiled_gyro_step_equals_propagate_then_the_rcm_update():
                 f.on_accel(s, t + 1000, f_true + rng.normal(size=3) * 0.05)
         states.append(s)
     a, b = states
-    assert a.counts == b.counts and a.counts["updates:rcm"] > 800
+    assert a.counts == b.counts and a.counts["updates:rcm"] > 800 and a.counts["updates:gravity"] > 100
     assert a.nis["rcm"] == pytest.approx(b.nis["rcm"], rel=1e-9)
+    assert a.nis["gravity"] == pytest.approx(b.nis["gravity"], rel=1e-9)
     for name in ("p", "v", "R", "bg", "ba", "alpha_tool", "w_imu"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12, err_msg=name)
     np.testing.assert_allclose(a.P, b.P, rtol=1e-9, atol=1e-18)
