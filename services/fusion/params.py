@@ -83,8 +83,9 @@ class Params:
     gravity_sigma_deg: float = 1.0
     gravity_sigma_per_excess: float = 20.0  # sigma grows by this many deg per unit | |a|/g - 1 |
     # every n-th accelerometer sample (0: none). Each sample's tilt noise is white (0.3-0.55 deg),
-    # so every sample at the same standard deviation beats fewer, each trusted more: at 240 Hz
-    # (from 20) full fusion went 0.881 / 0.964 -> 0.867 / 0.909 mm on tuning seeds 1000-1003
+    # so every sample at the same standard deviation beats fewer, each trusted more: at every
+    # sample (from 20 Hz) full fusion went 0.881 / 0.964 -> 0.870 / 0.901 mm on tuning seeds
+    # 1000-1003 (sweeps / teleop); 0.5 deg at 20 Hz gave 0.903 / 0.977
     gravity_every: int = 1
     # ToF per sample: 3.2 mm white + 3 mm pose-locked at 100 Hz, inflated for the correlation;
     # weighed less while vision tips also give the depth (the pose-locked part then only adds

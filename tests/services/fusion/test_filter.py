@@ -293,6 +293,21 @@ def _run_static(seconds: float, bias_imu: np.ndarray, seed: int = 1):
     return f, s, R, p
 
 
+@pytest.mark.parametrize("every", [0, 1, 3])
+def test_gravity_updates_come_at_every_nth_accelerometer_sample(every):
+    """`gravity_every`: a gravity update at every n-th accelerometer sample, none at 0."""
+    c = _calib()
+    R, p = _pose()
+    f = TrackingFilter(c, Params(gravity_every=every), frozenset({"imu"}))
+    f_true = c.R_tool_imu.T @ R.T @ (-G)
+    s = f.new_state(0, R, 0.14, f_true)
+    for k in range(1, 601):
+        f.on_gyro(s, k * 5_000_000, np.zeros(3))
+        f.on_accel(s, k * 5_000_000 + 1000, f_true)
+    assert s.counts.get("updates:gravity", 0) == (600 // every if every else 0)
+    assert ("gravity" in s.nis) == bool(every)
+
+
 def _range(c: Calibration, R: np.ndarray, p: np.ndarray) -> float:
     """The raw range [m] of the ray-plane model at the tool pose (R, p), written out here so the
     tests do not lean on the filter's own kernel."""
