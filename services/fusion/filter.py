@@ -27,7 +27,6 @@ from services.fusion.params import SENSORS, Params
 from services.fusion.tof_map import TofMap
 from tiplog.calibration import Calibration
 
-G = 9.80665
 N = 16
 IP, IV, ITH, IBG, IBA, IBR = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15), 15
 E_Z = np.array([0.0, 0.0, 1.0])
@@ -289,9 +288,7 @@ class TrackingFilter:
 
     def on_accel(self, s: State, t_ns: int, f_imu: np.ndarray) -> None:
         """Hold the sample for propagation; every `gravity_every`-th sample, the gravity update
-        at the state's time (at most one gyro period earlier: far below its noise), propagation
-        and update in one compiled call (`kernels.gravity_step`), the same maths as `propagate`
-        and `update_gravity`."""
+        at the state's time (at most one gyro period earlier: far below its noise)."""
         if not self.imu:
             return
         s.f_imu = np.asarray(f_imu, float)
@@ -303,22 +300,12 @@ class TrackingFilter:
             return
         if self.propagate_apart:
             self.propagate(s, t_ns)
-            self.update_gravity(s)
-            return
-        dt = (t_ns - s.t_ns) * 1e-9
-        if dt > 0.0:
-            s.t_ns = int(t_ns)
-        free = self.brho_free(s)
-        status, nis, dbrho = kernels.gravity_step(
-            s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
-            self._Q if free else self._Q_held, self._gyro_k, dt, True, self._grav_k, not free,
-        )  # fmt: skip
-        if status == 0:
-            s.counts["updates:gravity"] = s.counts.get("updates:gravity", 0) + 1
-            s.nis["gravity"] = s.nis.get("gravity", 0) + nis
-            s.brho += dbrho
+            dt = 0.0
         else:
-            s.counts["rejected:gravity:innovation"] = s.counts.get("rejected:gravity:innovation", 0) + 1
+            dt = (t_ns - s.t_ns) * 1e-9
+            if dt > 0.0:
+                s.t_ns = int(t_ns)
+        self.update_gravity(s, dt)
 
     # ------------------------------------------------------------------ updates
     def brho_free(self, s: State) -> bool:
@@ -382,13 +369,23 @@ class TrackingFilter:
         _bump(s.counts, "deferred:vision_tip")
         return False
 
-    def update_gravity(self, s: State) -> bool:
+    def update_gravity(self, s: State, dt: float = 0.0) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and
-        tangential terms (tip acceleration taken as zero), down-weighted as |f| leaves g."""
-        H, y = kernels.gravity_jacobian(s.R, self.R_ti, self.r_imu_tip_tool, s.w_imu, s.bg, s.ba, s.alpha_tool, s.f_imu)
-        excess = abs(math.sqrt(float(s.f_imu @ s.f_imu)) / G - 1.0)
-        sig = (self.prm.gravity_sigma_deg + self.prm.gravity_sigma_per_excess * excess) * DEG * G
-        return self._update(s, H, y, np.full(3, sig * sig), self.prm.gate_chi2_3, "gravity")
+        tangential terms (tip acceleration taken as zero), down-weighted as |f| leaves g, after
+        propagating over dt [s] (the state's time already set): one compiled call
+        (`kernels.gravity_step`)."""
+        free = self.brho_free(s)
+        status, nis, dbrho = kernels.gravity_step(
+            s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
+            self._Q if free else self._Q_held, self._gyro_k, dt, self._grav_k, not free,
+        )  # fmt: skip
+        if status:
+            s.counts["rejected:gravity:innovation"] = s.counts.get("rejected:gravity:innovation", 0) + 1
+            return False
+        s.counts["updates:gravity"] = s.counts.get("updates:gravity", 0) + 1
+        s.nis["gravity"] = s.nis.get("gravity", 0) + nis
+        s.brho += dbrho
+        return True
 
     def update_rest(self, s: State) -> bool:
         """The tool at rest: the mean gyro rate over a chunk of rest (`kernels.rest_sample`)

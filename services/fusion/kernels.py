@@ -409,15 +409,16 @@ def gyro_step(
 def gravity_step(
     p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
-    q: np.ndarray, k: np.ndarray, dt: float, imu: bool, g: np.ndarray, freeze_last: bool,
+    q: np.ndarray, k: np.ndarray, dt: float, g: np.ndarray, freeze_last: bool,
 ) -> tuple[int, float, float]:  # fmt: skip
     """What an accelerometer sample due for a gravity update does, in one call (it comes at
-    every sample): `propagate_held` over dt (k as in `gyro_step`), then the gravity update
+    every sample): `propagate_held` over dt (k as in `gyro_step`; 0 when the caller propagated
+    already), then the gravity update
     (`gravity_jacobian`) with the standard deviation g[0] + g[1] | |f|/g - 1 | [rad] of the
     direction per axis and chi-square gate g[2]. Returns (status, NIS, b_rho increment),
     status as `update`."""
     if dt > 0.0:
-        propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, imu)
+        propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, True)
     H, y = gravity_jacobian(R, R_ti, r_lever_tool, w_held, bg, ba, alpha_tool, f_imu)
     fn = math.sqrt(f_imu[0] * f_imu[0] + f_imu[1] * f_imu[1] + f_imu[2] * f_imu[2])
     sig = (g[0] + g[1] * abs(fn / 9.80665 - 1.0)) * 9.80665

@@ -186,9 +186,9 @@ def test_gravity_jacobian_is_the_derivative_of_its_prediction():
 def test_the_compiled_gyro_and_gravity_steps_equal_propagate_then_the_update():
     """`kernels.gyro_step` (propagation, angular acceleration and the RCM update in one call)
     and `kernels.gravity_step` (propagation and the gravity update) against the same samples
-    taken through `propagate`, `_update` and `update_gravity`, with a stall longer than the IMU
-    gap, stamps bunched closer than the angular-acceleration span, and both b_rho modes (free
-    after the junction, held once the offset window has passed)."""
+    propagated apart first (`propagate`, as the smoother runs the filter), with a stall longer
+    than the IMU gap, stamps bunched closer than the angular-acceleration span, and both b_rho
+    modes (free after the junction, held once the offset window has passed)."""
     c = _calib()
     R, p = _pose()
     f_true = c.R_tool_imu.T @ R.T @ (-G)
