@@ -371,13 +371,14 @@ class TrackingFilter:
 
     def update_gravity(self, s: State, dt: float = 0.0) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and
-        tangential terms (tip acceleration taken as zero), down-weighted as |f| leaves g, after
+        tangential terms (the shaft's point at the port taken at rest: `kernels.port_lever`),
+        down-weighted as |f| leaves g, after
         propagating over dt [s] (the state's time already set): one compiled call
         (`kernels.gravity_step`)."""
         free = self.brho_free(s)
         status, nis, dbrho = kernels.gravity_step(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
-            self._Q if free else self._Q_held, self._gyro_k, dt, self._grav_k, not free,
+            self._Q if free else self._Q_held, self._gyro_k, dt, self._grav_k, not free, self.rcm,
         )  # fmt: skip
         if status:
             s.counts["rejected:gravity:innovation"] = s.counts.get("rejected:gravity:innovation", 0) + 1

@@ -409,17 +409,17 @@ def gyro_step(
 def gravity_step(
     p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
-    q: np.ndarray, k: np.ndarray, dt: float, g: np.ndarray, freeze_last: bool,
+    q: np.ndarray, k: np.ndarray, dt: float, g: np.ndarray, freeze_last: bool, rcm: np.ndarray,
 ) -> tuple[int, float, float]:  # fmt: skip
     """What an accelerometer sample due for a gravity update does, in one call (it comes at
     every sample): `propagate_held` over dt (k as in `gyro_step`; 0 when the caller propagated
-    already), then the gravity update
-    (`gravity_jacobian`) with the standard deviation g[0] + g[1] | |f|/g - 1 | [rad] of the
-    direction per axis and chi-square gate g[2]. Returns (status, NIS, b_rho increment),
+    already), then the gravity update (`gravity_jacobian`, the shaft's point at the port `rcm`
+    taken at rest: `port_lever`) with the standard deviation g[0] + g[1] | |f|/g - 1 | [rad] of
+    the direction per axis and chi-square gate g[2]. Returns (status, NIS, b_rho increment),
     status as `update`."""
     if dt > 0.0:
         propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, True)
-    H, y = gravity_jacobian(R, R_ti, r_lever_tool, w_held, bg, ba, alpha_tool, f_imu)
+    H, y = gravity_jacobian(R, R_ti, port_lever(R, p, rcm, r_lever_tool), w_held, bg, ba, alpha_tool, f_imu)
     fn = math.sqrt(f_imu[0] * f_imu[0] + f_imu[1] * f_imu[1] + f_imu[2] * f_imu[2])
     sig = (g[0] + g[1] * abs(fn / 9.80665 - 1.0)) * 9.80665
     r_var = np.empty(3)
@@ -545,6 +545,19 @@ def rcm_jacobian(R: np.ndarray, p: np.ndarray, rcm: np.ndarray) -> tuple[np.ndar
     y = np.empty(2)
     y[0], y[1] = -d[0], -d[1]
     return H, y
+
+
+@njit(cache=True)
+def port_lever(R: np.ndarray, p: np.ndarray, rcm: np.ndarray, r_lever_tool: np.ndarray) -> np.ndarray:
+    """The lever arm from the IMU to the shaft's point at the port, in tool coordinates:
+    r_lever_tool (IMU to tip) less the insertion depth L = u.(p - rcm) along the shaft axis.
+    Through a trocar that point, not the tip, is the one at rest while the tool pivots (the
+    tip swings by L alpha, 0.8 m/s^2 at the sweeps' fastest); only sliding along the shaft
+    moves it."""
+    L = R[0, 2] * (p[0] - rcm[0]) + R[1, 2] * (p[1] - rcm[1]) + R[2, 2] * (p[2] - rcm[2])
+    out = r_lever_tool.copy()
+    out[2] -= L
+    return out
 
 
 @njit(cache=True)

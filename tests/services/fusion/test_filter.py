@@ -183,6 +183,34 @@ def test_gravity_jacobian_is_the_derivative_of_its_prediction():
     assert np.abs(H[:, 6:9]).max() > 1.0 and np.array_equal(H[:, 12:15], np.eye(3))
 
 
+def test_the_gravity_update_takes_the_shafts_point_at_the_port_at_rest():
+    """A tool pivoting about the port (rate and angular acceleration, no sliding): the specific
+    force at the IMU is gravity plus the centripetal and tangential terms about the port, so
+    the gravity update must see no innovation and leave the attitude as it was. Taking the tip
+    at rest instead misses the tip's own swing, L alpha."""
+    c = _calib()
+    R, p = _pose()
+    depth = float(np.linalg.norm(p - RCM))
+    w_tool, alpha = np.array([1.0, -0.5, 0.3]), np.array([4.0, -3.0, 1.0])
+    r = c.p_imu_tool_m + depth * E_Z  # port to IMU, tool coordinates (the tip is the origin)
+    a_imu = np.cross(alpha, r) + np.cross(w_tool, np.cross(w_tool, r))
+    f_imu = c.R_tool_imu.T @ (a_imu - R.T @ G)
+    w_imu = c.R_tool_imu.T @ w_tool
+    lever = kernels.port_lever(R, p, RCM, -c.p_imu_tool_m)
+    np.testing.assert_allclose(lever, -r, atol=1e-12)
+    _, y = kernels.gravity_jacobian(R, c.R_tool_imu, lever, w_imu, np.zeros(3), np.zeros(3), alpha, f_imu)
+    np.testing.assert_allclose(y, 0.0, atol=1e-12)
+    _, y_tip = kernels.gravity_jacobian(R, c.R_tool_imu, -c.p_imu_tool_m, w_imu, np.zeros(3), np.zeros(3), alpha, f_imu)
+    assert np.linalg.norm(y_tip) > 0.5  # m/s^2: 3 deg of gravity
+    f = TrackingFilter(c, Params())
+    s = f.new_state(0, R, depth, f_imu)
+    s.w_imu, s.alpha_tool = w_imu, alpha.copy()
+    R0, p0 = s.R.copy(), s.p.copy()
+    assert f.update_gravity(s)
+    np.testing.assert_allclose(s.R, R0, atol=1e-12)
+    np.testing.assert_allclose(s.p, p0, atol=1e-12)
+
+
 def test_the_compiled_gyro_and_gravity_steps_equal_propagate_then_the_update():
     """`kernels.gyro_step` (propagation, angular acceleration and the RCM update in one call)
     and `kernels.gravity_step` (propagation and the gravity update) against the same samples
