@@ -553,7 +553,8 @@ def port_lever(R: np.ndarray, p: np.ndarray, rcm: np.ndarray, r_lever_tool: np.n
     r_lever_tool (IMU to tip) less the insertion depth L = u.(p - rcm) along the shaft axis.
     Through a trocar that point, not the tip, is the one at rest while the tool pivots (the
     tip swings by L alpha, 0.8 m/s^2 at the sweeps' fastest); only sliding along the shaft
-    moves it."""
+    moves it. The update's Jacobian leaves out the lever's dependence on the depth: a depth
+    off by 1 mm moves the prediction by (|alpha| + |w|^2) mm/s^2, 0.04 deg of gravity there."""
     L = R[0, 2] * (p[0] - rcm[0]) + R[1, 2] * (p[1] - rcm[1]) + R[2, 2] * (p[2] - rcm[2])
     out = r_lever_tool.copy()
     out[2] -= L
@@ -566,12 +567,13 @@ def gravity_jacobian(
     bg: np.ndarray, ba: np.ndarray, alpha_tool: np.ndarray, f_imu: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """(H (3, 16), y (3,)) of the gravity update: the specific force at the IMU predicted as
-    gravity plus the lever arm's tangential and centripetal terms (tip acceleration zero),
+    gravity plus the lever arm's tangential and centripetal terms (the lever's far end at rest:
+    `gravity_step` passes the shaft's point at the port, `port_lever`),
     f = R_ti^T R^T (a_imu - g) + b_a. The lever-arm terms turn with the tool (they are fixed in
     tool coordinates), so only gravity's share depends on the attitude error: H_theta =
     R_ti^T [R^T (-g)]x."""
     w_t = _mv(R_ti, w_imu - bg)
-    a_t = -_lever_accel(w_t, alpha_tool, r_lever_tool)  # the IMU's acceleration (tip at rest), tool coordinates
+    a_t = -_lever_accel(w_t, alpha_tool, r_lever_tool)  # the IMU's acceleration (far end at rest), tool coordinates
     w = np.empty(3)  # R^T (-g): gravity's share, in tool coordinates
     for i in range(3):
         w[i] = 9.80665 * R[2, i]
