@@ -242,19 +242,25 @@ class TrackingFilter:
             self._Q if self.brho_free(s) else self._Q_held, self._gyro_k, dt, self.imu,
         )  # fmt: skip
 
+    def _advance(self, s: State, t_ns: int) -> float:
+        """The state's clock to t_ns for a compiled step (`kernels.gyro_step`, `gravity_step`):
+        returns the dt [s] that step is to propagate over, or 0 after propagating here when
+        each step's propagation must come apart (`propagate_apart`)."""
+        if self.propagate_apart:
+            self.propagate(s, t_ns)
+            return 0.0
+        dt = (t_ns - s.t_ns) * 1e-9
+        if dt > 0.0:
+            s.t_ns = int(t_ns)
+        return dt
+
     def on_gyro(self, s: State, t_ns: int, w_imu: np.ndarray) -> str | None:
         """Propagate to t_ns with the held samples, take the new rate (and the angular
         acceleration over the last `alpha_window` samples), and every `rcm_every`-th sample the
         RCM update (the shaft line through the registered RCM, (R^T (r - p))_xy = 0, 2-D): one
         compiled call (`kernels.gyro_step`), the same maths as `propagate` and `_update`.
         Returns why the state must be reset (`diverged`), or None."""
-        if self.propagate_apart:
-            self.propagate(s, t_ns)
-            dt = 0.0
-        else:
-            dt = (t_ns - s.t_ns) * 1e-9
-            if dt > 0.0:
-                s.t_ns = int(t_ns)
+        dt = self._advance(s, t_ns)
         free = self.brho_free(s)
         w = w_old = s.w_imu
         dt_alpha = -1.0  # alpha unchanged until the window is full
@@ -298,14 +304,7 @@ class TrackingFilter:
         every = self.prm.gravity_every
         if not every or s.accel_n % every:
             return
-        if self.propagate_apart:
-            self.propagate(s, t_ns)
-            dt = 0.0
-        else:
-            dt = (t_ns - s.t_ns) * 1e-9
-            if dt > 0.0:
-                s.t_ns = int(t_ns)
-        self.update_gravity(s, dt)
+        self.update_gravity(s, self._advance(s, t_ns))
 
     # ------------------------------------------------------------------ updates
     def brho_free(self, s: State) -> bool:
