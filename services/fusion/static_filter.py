@@ -1,12 +1,22 @@
 """Static-trial filter for the translation and rotation protocols (paper, "Error-State Kalman
-Filter"): nominal state (R_base_tool, gyro bias b_g [rad/s, imu axes], insertion depth L [m]),
-error state [dtheta (tool axes, right perturbation), db_g, dL] in R^7. Pure numpy, no I/O.
+Filter"): nominal state (R_base_tool, gyro bias b_g [rad/s, imu axes], insertion depth L [m],
+the IMU's mounting error m [rad, tool x and y]), error state [dtheta (tool axes, right
+perturbation), db_g, dL, dm] in R^9. Pure numpy, no I/O.
 
-- gyro propagation R <- R Exp(R_tool_imu (w - b_g) dt);
-- accelerometer direction R_tool_imu^T R^T e_z while |w - b_g| < 2 deg/s;
+- gyro propagation R <- R Exp(M (w - b_g) dt), M = Exp(m) R_tool_imu the mounting as estimated;
+- accelerometer direction M^T R^T e_z while |w - b_g| < 2 deg/s;
 - vision: the two tangent-plane constraints n_i^T A u = 0 (A = R_camera_base, u = R e_s)
   and the junction depth (junction ray against the axis through the registered RCM);
 - ToF: the ray-plane range rho = (h - m.(p + R o_s)) / (m.(R b_s)), p = r + L u.
+
+The mounting error's two components across the shaft become observable once the tool turns: the
+gyro turns the shaft about M's axes, and vision and gravity see where the shaft went. The
+accelerometer's direction does not update the mounting directly (its Jacobian's mounting columns
+are zero): at rest it would tell the mounting from the few poses a protocol repeats, through
+pose-locked errors (0.21 deg per pose) as large as a lab's mounting error. The mounting is learnt
+through its correlation with the attitude that the gyro's turns carry. The component along the
+shaft is not observable (vision is blind to roll, and gravity cannot tell it from the tool's own
+roll), nor does it change a relative rotation; it is left to the calibration.
 Every update is gated on its innovation (chi-square) and counted by stream and reason. The
 initial heading is chosen among the branches that satisfy the plane constraints by
 reprojecting the shaft into the image (`initial_heading`).
@@ -73,6 +83,9 @@ class StaticParams:
     # relrot_absolute_deg 0 keeps the filter's own post-window attitude
     relrot_absolute_deg: float = 0.45
     relrot_gyro_per_deg: float = 0.008
+    # prior sigma of the IMU's mounting error across the shaft, per axis (lab calibration:
+    # a few tenths of a degree); 0: the calibration's mounting is taken as exact
+    init_mount_deg: float = 0.3
 
 
 @dataclass
@@ -81,7 +94,8 @@ class StaticState:
     R: np.ndarray  # R_base_tool
     bg: np.ndarray  # rad/s, imu axes
     L: float  # m
-    P: np.ndarray  # (7, 7)
+    P: np.ndarray  # (9, 9)
+    mount: np.ndarray = field(default_factory=lambda: np.zeros(3))  # rad, tool axes (z stays 0)
     w_imu: np.ndarray = field(default_factory=lambda: np.zeros(3))  # latest gyro sample
     depth_refused: int = 0  # consecutive vision depths refused on innovation
     counts: dict[str, int] = field(default_factory=dict)
@@ -106,8 +120,13 @@ class StaticFilter:
             + [(p.init_heading_deg * _DEG) ** 2]
             + [(p.init_gyro_bias_dps * _DEG) ** 2] * 3
             + [(p.init_depth_mm * 1e-3) ** 2]
+            + [(p.init_mount_deg * _DEG) ** 2] * 2
         )
         return StaticState(int(t_ns), np.array(R_base_tool, float), np.zeros(3), float(depth_m), P)
+
+    def R_tool_imu(self, s: StaticState) -> np.ndarray:
+        """The IMU's mounting as estimated: Exp(m) R_tool_imu."""
+        return so3_exp(s.mount) @ self.c.R_tool_imu
 
     # ------------------------------------------------------------------ propagation
     def propagate(self, s: StaticState, t_ns: int) -> None:
@@ -116,16 +135,18 @@ class StaticFilter:
         if dt <= 0.0:
             return
         p = self.p
-        w_tool = self.c.R_tool_imu @ (s.w_imu - s.bg)
+        M = self.R_tool_imu(s)
+        w_tool = M @ (s.w_imu - s.bg)
         Exp = so3_exp(w_tool * dt)
         s.R = s.R @ Exp
-        F = np.eye(7)
+        F = np.eye(9)
         F[0:3, 0:3] = Exp.T
-        F[0:3, 3:6] = -self.c.R_tool_imu * dt
+        F[0:3, 3:6] = -M * dt
+        F[0:3, 7:9] = -skew(w_tool)[:, 0:2] * dt  # w_tool = Exp(dm) M w: dm x w_tool
         rate = float(np.linalg.norm(s.w_imu - s.bg))
         q_b = (p.gyro_bias_rw_dps_rts + p.gyro_bias_rw_dps_rts_per_radps * rate) * _DEG
         q_l = (p.depth_rw_still_mm_rts if self.still else p.depth_rw_moving_mm_rts) * 1e-3
-        Q = np.diag([(p.gyro_noise_dps_rthz * _DEG) ** 2] * 3 + [q_b**2] * 3 + [q_l**2]) * dt
+        Q = np.diag([(p.gyro_noise_dps_rthz * _DEG) ** 2] * 3 + [q_b**2] * 3 + [q_l**2, 0.0, 0.0]) * dt
         s.P = F @ s.P @ F.T + Q
         s.t_ns = int(t_ns)
 
@@ -150,7 +171,8 @@ class StaticFilter:
         s.R = s.R @ so3_exp(dx[0:3])
         s.bg = s.bg + dx[3:6]
         s.L = float(s.L + dx[6])
-        I_KH = np.eye(7) - K @ H
+        s.mount[0:2] += dx[7:9]
+        I_KH = np.eye(9) - K @ H
         s.P = I_KH @ s.P @ I_KH.T + K @ Rn @ K.T
         _bump(s.counts, f"updates:{name}")
         return True
@@ -163,10 +185,11 @@ class StaticFilter:
         f = np.asarray(f_imu_mps2, float)
         z = f / np.linalg.norm(f)
         v = s.R.T @ np.array([0.0, 0.0, 1.0])
-        H = np.zeros((3, 7))
-        H[:, 0:3] = self.c.R_tool_imu.T @ skew(v)
+        M = self.R_tool_imu(s)
+        H = np.zeros((3, 9))
+        H[:, 0:3] = M.T @ skew(v)
         Rn = np.eye(3) * (self.p.accel_sigma_deg * _DEG) ** 2
-        return self._update(s, z - self.c.R_tool_imu.T @ v, H, Rn, "accel")
+        return self._update(s, z - M.T @ v, H, Rn, "accel")
 
     def update_vision(self, s: StaticState, n_left: np.ndarray, n_right: np.ndarray, ray: np.ndarray | None) -> None:
         """Tangent-plane constraints and, when the junction ray is given and well
@@ -179,7 +202,7 @@ class StaticFilter:
             return
         N = np.stack([n_left, n_right])
         AR = self.A @ s.R
-        H = np.zeros((2, 7))
+        H = np.zeros((2, 9))
         H[:, 0:3] = -(N @ AR) @ skew(E_S)
         y = -(N @ AR @ E_S)
         self._update(s, y, H, np.eye(2) * (self.p.plane_sigma_deg * _DEG) ** 2, "vision_planes")
@@ -189,7 +212,7 @@ class StaticFilter:
             d = c.R_base_camera @ p0_from_normals(n_left, n_right, c.shaft_radius_m) + self.cam_base - c.rcm_base_m
             u = s.R @ E_S
             du = -s.R @ skew(E_S)  # d u / d dtheta
-            H = np.zeros((3, 7))
+            H = np.zeros((3, 9))
             H[:, 0:3] = -(u @ d) * du - np.outer(u, d @ du)
             y = -(d - u * (u @ d))
             self._update(s, y, H, np.eye(3) * (self.p.p0_sigma_mm * 1e-3) ** 2, "vision_p0")
@@ -201,7 +224,7 @@ class StaticFilter:
             _bump(s.counts, "rejected:vision_depth:conditioning")
             return
         L_vis = float(depth) + c.junction_proximal_m - c.vision_tip_offset_m
-        H = np.zeros((1, 7))
+        H = np.zeros((1, 9))
         H[0, 6] = 1.0
         Rn = np.array([[(self.p.vision_depth_sigma_mm * 1e-3) ** 2]])
         if self._update(s, np.array([L_vis - s.L]), H, Rn, "vision_depth"):
@@ -227,7 +250,7 @@ class StaticFilter:
 
     def update_tof(self, s: StaticState, range_m: float) -> bool:
         h0 = self.tof_range(s.R, s.L)
-        H = np.zeros((1, 7))
+        H = np.zeros((1, 9))
         eps = 1e-6
         for k in range(3):
             d = np.zeros(3)

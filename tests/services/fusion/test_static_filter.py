@@ -14,6 +14,7 @@ import pytest
 from services.fusion.static_filter import (
     E_S,
     StaticFilter,
+    StaticParams,
     heading_branches,
     inclined_rotation,
     initial_heading,
@@ -140,3 +141,16 @@ def test_estimate_identical_without_truth(session, tmp_path):
 def test_ablation_names_are_checked(tmp_path):
     with pytest.raises(ValueError, match="magnetometer"):
         estimate_trials(tmp_path / "unused.mcap", updates=frozenset({"accel", "magnetometer"}))
+
+
+def test_the_translation_protocol_keeps_the_calibrations_mounting(session):
+    """The mounting is learnt in the rotation protocol only: by default a translation session is
+    run with the mounting held, and learning it would change the estimate."""
+    held, _ = estimate_trials(session, params=StaticParams(init_mount_deg=0.0))
+    default, _ = estimate_trials(session)
+    learnt, _ = estimate_trials(session, params=StaticParams(init_mount_deg=0.3))
+    for a, b in zip(held, default, strict=True):
+        np.testing.assert_array_equal(a.displacement_base_m, b.displacement_base_m)
+    assert any(
+        not np.array_equal(a.displacement_base_m, c.displacement_base_m) for a, c in zip(held, learnt, strict=True)
+    )
