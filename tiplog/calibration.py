@@ -161,6 +161,9 @@ class Calibration:
     tof_plane_h_m: float
     latency_ms: dict[str, float] = field(default_factory=dict)  # per stream: gyro, accel, tof, camera, ...
     vision_tip_offset_m: float = 0.0  # fitted junction-derived tip minus true tip, along u
+    # how well R_tool_imu is known, SD per axis [deg], as `tiplog calibrate` fitted it; None: not
+    # stated (the static-trial filter then learns the mounting in the rotation protocol)
+    R_tool_imu_sd_deg: float | None = None
 
     def __post_init__(self) -> None:
         for name, shape in _SHAPES.items():
@@ -170,6 +173,11 @@ class Calibration:
         if not self.shaft_radius_m > 0:
             raise CalibrationError(f"calibration field shaft_radius_m: must be > 0 (got {self.shaft_radius_m})")
         object.__setattr__(self, "intrinsics", _intrinsics(self.intrinsics))
+        if self.R_tool_imu_sd_deg is not None:
+            sd = _number("R_tool_imu_sd_deg", self.R_tool_imu_sd_deg)
+            if not sd >= 0.0:
+                raise CalibrationError(f"calibration field R_tool_imu_sd_deg: must be >= 0 deg (got {sd})")
+            object.__setattr__(self, "R_tool_imu_sd_deg", sd)
         if not isinstance(self.latency_ms, dict):
             raise CalibrationError(
                 f"calibration field latency_ms: expected a mapping of stream name to ms (got {self.latency_ms!r})"

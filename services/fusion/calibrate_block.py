@@ -126,6 +126,7 @@ def calibrate_block(
     R_tool_imu = prior.R_tool_imu
     if "mounting" in fits:
         R_tool_imu = new["R_tool_imu"] = mounting(data, win, prior, report)
+        new["R_tool_imu_sd_deg"] = report["mounting"]["sd_deg"]
     if "accel" in fits:
         ai = window_samples(win, data.accel_t_ns, prior.latency_ms.get("accel", 0.0))
         keep = [k for k, i in enumerate(ai) if len(i) >= 10]

@@ -18,11 +18,13 @@ sigma_a^2 / (sigma_a^2 + (k theta)^2) on the gyro's (sigma_a = `relrot_absolute_
 0.436 deg to 0.36-0.39 and 0.25 over a wide range of both constants. The gyro link turns the
 gyro's rates through the IMU mounting as the filter has learnt it by the session's end.
 
-The mounting is learnt in the rotation protocol only. A translation trial turns the tool by a few
-degrees, and the accelerometer's pose-locked errors between its two windows (0.21 deg per pose)
-then read as a mounting error many times larger, which the next trial takes back: with it, the
-translation RMS of tuning seed 1000 went from 0.465 to 0.675 mm. The translation protocol keeps
-the calibration's mounting (`init_mount_deg` 0) unless given its own parameters.
+The mounting is learnt in the rotation protocol only, and only from a calibration that does not
+state how well it knows it (`R_tool_imu_sd_deg`; `tiplog calibrate` states its fit's, 0.09 deg
+on the bench, better than the 0.01-0.19 deg that the trials teach). A translation trial turns the
+tool by a few degrees, and the accelerometer's pose-locked errors between its two windows (0.21
+deg per pose) then read as a mounting error many times larger, which the next trial takes back:
+with it, the translation RMS of tuning seed 1000 went from 0.465 to 0.675 mm. Otherwise the
+calibration's mounting is held (`init_mount_deg` 0), unless the caller gives its own parameters.
 """
 
 from __future__ import annotations
@@ -187,8 +189,8 @@ def estimate_trials(
         raise ValueError(f"{path}: no complete trial in the session")
     ev = _events(path, calib)
     t_ev = np.array([e[0] for e in ev], dtype=np.int64)
-    if params is None and all(w.kind != "rotation" for w in trials):
-        params = StaticParams(init_mount_deg=0.0)  # see the module docstring
+    if params is None and (calib.R_tool_imu_sd_deg is not None or all(w.kind != "rotation" for w in trials)):
+        params = StaticParams(init_mount_deg=0.0)  # the mounting held: see the module docstring
     filt = StaticFilter(calib, params)
     a0, a1 = trials[0].pre_ns
     in_w = (t_ev >= a0) & (t_ev <= a1)

@@ -76,6 +76,8 @@ REFLECTION = [[1, 0, 0], [0, 1, 0], [0, 0, -1]]
         ("intrinsics.dist", [0.1, 0.2, 0.3], ("intrinsics.dist", "got 3")),
         ("intrinsics.skew", 0.0, ("intrinsics", "unknown key", "skew")),
         ("bogus_key", 1.0, ("unknown calibration field", "bogus_key")),
+        ("R_tool_imu_sd_deg", -0.1, ("R_tool_imu_sd_deg", ">= 0")),
+        ("R_tool_imu_sd_deg", "tight", ("R_tool_imu_sd_deg", "expected a number")),
     ],
 )
 def test_a_bad_field_is_refused_by_name(tmp_path, bench_dict, path, value, needles):

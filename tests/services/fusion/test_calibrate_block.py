@@ -49,6 +49,8 @@ def test_imu_mounting_within_0_35_deg(fitted):
     _, cal, report, truth = fitted
     assert rotation_error_deg(cal.R_tool_imu, truth["R_tool_imu"]) < 0.35
     assert report["mounting"]["source"] == "gyro+accel"
+    # the file states how well it knows the mounting (the static-trial filter then holds it)
+    assert cal.R_tool_imu_sd_deg == report["mounting"]["sd_deg"] and 0.0 < cal.R_tool_imu_sd_deg < 0.35
 
 
 def test_accelerometer_calibration_is_near_the_bench_and_held_out_residual_paper_sized(fitted):

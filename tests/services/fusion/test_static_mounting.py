@@ -9,11 +9,13 @@ pose-locked errors out of it.)"""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from services.fusion.static_filter import E_S, StaticFilter, StaticParams
+from services.fusion.static_trials import estimate_trials
 from tests.services.fusion.sessions import bench_session
 from tiplog.calibration import Calibration
 from tiplog.geometry import quat_to_rot, rotation_angle, so3_exp, so3_log
@@ -75,3 +77,27 @@ def test_the_mounting_across_the_shaft_is_learnt_from_the_turns(geometry):
     np.testing.assert_array_equal(held.R_tool_imu(t), calib.R_tool_imu)
     assert rotation_angle(t.R.T @ R_true) > math.radians(0.5)  # the mounting error, uncorrected
     assert rotation_angle(s.R.T @ R_true) < 0.5 * rotation_angle(t.R.T @ R_true)
+
+
+@pytest.fixture(scope="module")
+def rotation_session(tmp_path_factory):
+    return bench_session(tmp_path_factory, "rotation", seed=43, duration_s=40.0)
+
+
+def test_the_mounting_is_learnt_only_where_the_calibration_does_not_state_it(rotation_session):
+    """By default a rotation session learns the mounting from a calibration that does not say how
+    well it knows it (the bench's as-calibrated constants) and holds it from one that does (a
+    `tiplog calibrate` file)."""
+    unstated = Calibration.from_mcap_metadata(read_metadata(rotation_session))
+    assert unstated.R_tool_imu_sd_deg is None
+    stated = replace(unstated, R_tool_imu_sd_deg=0.09)
+
+    def rel(calib, params=None):
+        est, _ = estimate_trials(rotation_session, calib, params)
+        assert len(est) >= 2
+        return np.array([e.R_rel for e in est])
+
+    learnt, held = rel(unstated, StaticParams()), rel(unstated, StaticParams(init_mount_deg=0.0))
+    assert not np.array_equal(learnt, held)
+    np.testing.assert_array_equal(rel(unstated), learnt)
+    np.testing.assert_array_equal(rel(stated), held)
