@@ -130,9 +130,10 @@ def rotation_md(res: dict[str, Any]) -> list[str]:
     per = ", ".join(f"{a} {v['relrot']['rmse']:.3f}" for a, v in r["per_axis"].items())
     lines.append(f"{'' if held else chr(10)}Relative-rotation RMSE per axis (deg): {per}.")
     lines.append(
-        "bench: the session's as-calibrated constants; calibrated: `tiplog calibrate block --latency` on a fit-only "
-        "block recorded at the rotation session's neutral pose (the paper fitted this session's constants under "
-        "its own conditions, repetitions 1-3)."
+        "bench: the session's as-calibrated constants, the IMU mounting learnt by the static-trial filter; "
+        "calibrated: `tiplog calibrate block --latency` on a fit-only block recorded at the rotation session's "
+        "neutral pose, its mounting held (the paper fitted this session's constants under its own conditions, "
+        "repetitions 1-3)."
     )
     return lines
 
