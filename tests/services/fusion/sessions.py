@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from google.protobuf.message import Message
 
+from tiplog.calibration import Calibration
 from tiplog.cli import main as tiplog_main
+from tiplog.geometry import quat_to_rot
 from tiplog.mcap_io import McapWriter, read_messages, read_metadata
 
 _CACHE: dict[tuple, Path] = {}
@@ -22,6 +25,14 @@ def bench_session(tmp_path_factory, scenario: str = "teleop", seed: int = 11, du
         assert tiplog_main([*args, "--out", str(path), "--quiet"]) == 0
         _CACHE[key] = path
     return _CACHE[key]
+
+
+def bench_geometry(tmp_path_factory) -> tuple[Calibration, np.ndarray]:
+    """A bench calibration (as calibrated) and a plausible R_base_tool, from a 3 s session."""
+    path = bench_session(tmp_path_factory, "translation", seed=41, duration_s=3.0)
+    calib = Calibration.from_mcap_metadata(read_metadata(path))
+    o = next(iter(read_messages(path, ["bench/robot"]))).message.tool_pose.orientation
+    return calib, quat_to_rot(np.array([o.x, o.y, o.z, o.w]))
 
 
 def bench_estimate(tmp_path_factory, session: Path) -> Path:

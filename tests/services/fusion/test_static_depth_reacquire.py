@@ -9,19 +9,14 @@ import numpy as np
 import pytest
 
 from services.fusion.static_filter import E_S, StaticFilter, StaticParams
-from tests.services.fusion.sessions import bench_session
+from tests.services.fusion.sessions import bench_geometry
 from tiplog.calibration import Calibration
-from tiplog.geometry import quat_to_rot
-from tiplog.mcap_io import read_messages, read_metadata
 from tiplog.vision_geometry import closest_axis_point, tangent_plane_normals
 
 
 @pytest.fixture(scope="module")
 def geometry(tmp_path_factory):
-    path = bench_session(tmp_path_factory, "translation", seed=41, duration_s=3.0)
-    calib = Calibration.from_mcap_metadata(read_metadata(path))
-    o = next(iter(read_messages(path, ["bench/robot"]))).message.tool_pose.orientation  # a plausible pose
-    return calib, quat_to_rot(np.array([o.x, o.y, o.z, o.w]))
+    return bench_geometry(tmp_path_factory)
 
 
 def _frame(calib: Calibration, R: np.ndarray, L_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -16,10 +16,10 @@ import pytest
 
 from services.fusion.static_filter import E_S, StaticFilter, StaticParams
 from services.fusion.static_trials import estimate_trials
-from tests.services.fusion.sessions import bench_session
+from tests.services.fusion.sessions import bench_geometry, bench_session
 from tiplog.calibration import Calibration
-from tiplog.geometry import quat_to_rot, rotation_angle, so3_exp, so3_log
-from tiplog.mcap_io import read_messages, read_metadata
+from tiplog.geometry import rotation_angle, so3_exp, so3_log
+from tiplog.mcap_io import read_metadata
 from tiplog.vision_geometry import closest_axis_point, tangent_plane_normals
 
 G_MPS2 = 9.81
@@ -28,10 +28,7 @@ MOUNT_ERROR = np.radians([0.5, -0.4, 0.0])  # tool axes: across the shaft
 
 @pytest.fixture(scope="module")
 def geometry(tmp_path_factory):
-    path = bench_session(tmp_path_factory, "translation", seed=41, duration_s=3.0)
-    calib = Calibration.from_mcap_metadata(read_metadata(path))
-    o = next(iter(read_messages(path, ["bench/robot"]))).message.tool_pose.orientation  # a plausible pose
-    return calib, quat_to_rot(np.array([o.x, o.y, o.z, o.w]))
+    return bench_geometry(tmp_path_factory)
 
 
 def _normals(calib: Calibration, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
