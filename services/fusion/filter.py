@@ -137,7 +137,7 @@ class TrackingFilter:
         self._gyro_k = np.array([
             p.gyro_bias_rw_dps_rts * DEG, p.gyro_bias_rw_dps_rts_per_radps * DEG, p.imu_gap_ms * 1e-3,
             p.no_imu_accel_rw_mps2_rts**2, self.rcm_var, p.gate_chi2_2, (p.max_position_sigma_mm * 1e-3) ** 2,
-            p.max_speed_mps**2,
+            p.max_speed_mps**2, p.tof_offset_rw_mm2_per_deg * 1e-6 / DEG,
         ])  # fmt: skip
         self._alpha_min_span_ns = p.alpha_min_span_ms * 1e6
         self.rest_on = self.imu and p.rest_bias

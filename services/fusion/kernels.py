@@ -129,10 +129,12 @@ def propagate(
     bg_rw_per_radps: float,
     dt: float,
     imu: bool,
+    brho_per_rad: float = 0.0,
 ) -> None:
     """One step of dt [s], in place: p, v [base], R [base<-tool], P (16, 16). `q` holds the
     per-second process noise of each error state (the gyro-bias entries are replaced by
-    (bg_rw_static + bg_rw_per_radps |w|)^2 [rad^2/s^3])."""
+    (bg_rw_static + bg_rw_per_radps |w|)^2 [rad^2/s^3]; while b_rho walks, q[15] > 0, its entry
+    grows by brho_per_rad |w| [m^2/rad])."""
     F_vth = np.zeros((3, 3))
     F_vba = np.zeros((3, 3))
     F_thth = np.eye(3)
@@ -153,6 +155,8 @@ def propagate(
         F_thbg = R_ti * -dt
         s = bg_rw_static + bg_rw_per_radps * wn
         qq[9] = qq[10] = qq[11] = s * s
+        if qq[15] > 0.0:
+            qq[15] += brho_per_rad * wn
         dR = np.empty((3, 3))
         _exp(w_tool[0] * dt, w_tool[1] * dt, w_tool[2] * dt, dR)
         R[:, :] = _mm(R, dR)
@@ -363,7 +367,7 @@ def propagate_held(
     motion, so the velocity gets the uncertainty it has without an IMU, k[3] [m^2/s^3], for
     every further second (held alone, a tool that was accelerating ran off at 0.25 m/s after
     a 0.7 s stall)."""
-    propagate(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[0], k[1], dt, imu)
+    propagate(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[0], k[1], dt, imu, k[8])
     if imu and dt > k[2]:
         for i in range(3, 6):
             P[i, i] += k[3] * (dt - k[2])
@@ -381,7 +385,7 @@ def gyro_step(
     the angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
     unchanged when negative); then, if do_rcm, the RCM update with variance k[4] per axis and
     chi-square gate k[5]; last, the state's `health` with k[6], k[7]. k = [bg_rw_static,
-    bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var, chi2, max_pos_var, max_speed2]. Returns
+    bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var, chi2, max_pos_var, max_speed2, brho_per_rad]. Returns
     (status, NIS, b_rho increment, health), status -1 when no RCM update was made, else as
     `update`."""
     if dt > 0.0:

@@ -47,6 +47,13 @@ class Params:
     # estimated loosely it trades against tilt through the lever arm's unmodelled acceleration.
     accel_bias_rw_mps2_rts: float = 0.00001
     tof_offset_rw_mm_rts: float = 1.5
+    # ... and, while it is estimated, by this much variance for every degree the tool turns: b_rho
+    # stands for the ToF's error at the present pose, and that error is pose-locked (3 mm across
+    # poses, 0.4 mm over repeats of one), so it changes as the beam moves over the target and not
+    # with time. Without it a fast pitch sweep leaked the changing error into the depth (tuning
+    # seed 1005: full fusion 1.21 mm in its pitch sweep against 1.14 for IMU+vision). 20 chosen
+    # on tuning seeds 1000-1007 (8 and 50 tried; see docs/fusion.md)
+    tof_offset_rw_mm2_per_deg: float = 20.0
     alpha_window: int = 4  # gyro samples spanned by the angular-acceleration difference
     # ... over at least this long: a loaded host's gateway can stamp a backlog of samples 1 ns
     # apart, and a difference over nanoseconds is no angular acceleration (it threw the tip

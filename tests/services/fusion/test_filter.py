@@ -140,7 +140,7 @@ def test_a_stall_past_the_imu_gap_gives_the_velocity_its_no_imu_uncertainty():
         p, v = np.zeros(3), np.zeros(3)
         bg, ba, w, fi, alpha = (a.copy() for a in args)
         if kernel is kernels.propagate:
-            kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k[0], k[1], dt, imu)
+            kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k[0], k[1], dt, imu, k[8])
         else:
             kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k, dt, imu)
         return P
@@ -154,6 +154,36 @@ def test_a_stall_past_the_imu_gap_gives_the_velocity_its_no_imu_uncertainty():
     np.testing.assert_allclose(added, 0.0, atol=1e-15)
     for step, imu in ((gap * 0.9, True), (dt, False)):
         np.testing.assert_array_equal(run(kernels.propagate_held, step, imu), run(kernels.propagate, step, imu))
+
+
+def test_the_tof_offset_walks_as_the_tool_turns_only_while_it_is_free():
+    """b_rho stands for the ToF's error at the present pose, which is pose-locked: while vision
+    gives tips it walks by `tof_offset_rw_mm2_per_deg` for every degree the tool turns, on top
+    of its walk at rest; held (no tip within the window) it does not move at all."""
+    prm = Params()
+    f = TrackingFilter(_calib(), prm)
+    k = f._gyro_k
+    assert k[8] == pytest.approx(prm.tof_offset_rw_mm2_per_deg * 1e-6 / math.radians(1.0)) and k[8] > 0
+    dt = 0.005
+    w_turn = np.array([0.3, -0.2, 0.4])  # rad/s in IMU coordinates
+
+    def var_brho(Q, w):
+        P = np.eye(N) * 1e-8
+        z = np.zeros(3)
+        kernels.propagate_held(
+            np.zeros(3), z.copy(), np.eye(3), P, z.copy(), z.copy(), w, np.array([0, 0, 9.8]), z.copy(),
+            f.R_ti, f.r_imu_tip_tool, Q, k, dt, True,
+        )  # fmt: skip
+        return P[N - 1, N - 1] - 1e-8
+
+    rest, turning = var_brho(f._Q, np.zeros(3)), var_brho(f._Q, w_turn)
+    assert rest == pytest.approx(f._Q[N - 1] * dt, rel=1e-9)
+    assert turning - rest == pytest.approx(k[8] * np.linalg.norm(w_turn) * dt, rel=1e-9)
+    # one degree of turning adds the parameter's variance [m^2]
+    assert (turning - rest) / math.degrees(np.linalg.norm(w_turn) * dt) == pytest.approx(
+        prm.tof_offset_rw_mm2_per_deg * 1e-6, rel=1e-9
+    )
+    assert var_brho(f._Q_held, w_turn) == 0.0
 
 
 def test_gravity_jacobian_is_the_derivative_of_its_prediction():
