@@ -82,7 +82,10 @@ class StaticParams:
     # roll) against the gyro's across the move per degree turned (gain, mounting, bias in motion);
     # relrot_absolute_deg 0 keeps the filter's own post-window attitude
     relrot_absolute_deg: float = 0.45
-    relrot_gyro_per_deg: float = 0.008
+    relrot_gyro_per_deg: float = 0.003
+    # the gyro's bias across the move: pinned at both windows' rest rates (W_pre's and W_post's
+    # tails) and walked between them where the tool turned; False: W_pre's rest rate throughout
+    relrot_bias_end: bool = True
     # prior sigma of the IMU's mounting error across the shaft, per axis (lab calibration:
     # a few tenths of a degree); 0: the calibration's mounting is taken as exact
     init_mount_deg: float = 0.3

@@ -7,15 +7,20 @@ The estimator reads the device and vision topics and the calibration only; from 
 Window times there are milliseconds on the session clock (the header stamps' clock).
 
 The post window's attitude is then combined with the pre window's carried across the move by
-the gyro alone (its bias: the mean rate over W_pre's tail, where the tool is at rest). The causal filter
+the gyro alone. Its bias is measured at both ends, as the mean rate over each window's tail,
+where the tool is at rest; across the move it is the mean of a random walk pinned at the two,
+moving in proportion to the walk's variance as the filter models it (`gyro_bias_rw_dps_rts`,
+`gyro_bias_rw_dps_rts_per_radps`): where the tool turned, since the bias moves in motion. With
+W_pre's rate alone the gyro carried the roll trials 0.59-0.77 deg RMS off on tuning seeds
+1000-1011, pinned at both ends 0.21-0.45 deg. The causal filter
 takes each window's accelerometer and vision directions as if their errors were white, so it
 ends W_post on that window's own pose-locked errors (0.21 deg for the accelerometer at each
 pose, about twice that in roll about a shaft 30 deg from vertical); the gyro's error across a
 move grows with the angle turned (gain, mounting, the bias moving in motion) and is far smaller
 for small moves. The two relative rotations are blended with weight
 sigma_a^2 / (sigma_a^2 + (k theta)^2) on the gyro's (sigma_a = `relrot_absolute_deg`, k =
-`relrot_gyro_per_deg`, theta the angle turned): tuning seeds 1000 and 1001 went from 0.569 and
-0.436 deg to 0.36-0.39 and 0.25 over a wide range of both constants. The gyro link turns the
+`relrot_gyro_per_deg`, theta the angle turned; both set on tuning seeds 1000-1011, k with the
+bias pinned at both ends; see docs/fusion-live.md). The gyro link turns the
 gyro's rates through the IMU mounting as the filter has learnt it by the session's end.
 
 The mounting is learnt in the rotation protocol only, and only from a calibration that does not
@@ -135,15 +140,35 @@ def _mean_rotation(Rs: list[np.ndarray]) -> np.ndarray:
     return U @ D @ Vt
 
 
-def gyro_link(t_ns: np.ndarray, w_imu: np.ndarray, t0: int, t1: int, bias: np.ndarray) -> np.ndarray:
+def gyro_link(
+    t_ns: np.ndarray,
+    w_imu: np.ndarray,
+    t0: int,
+    t1: int,
+    bias: np.ndarray,
+    bias_end: np.ndarray | None = None,
+    walk: tuple[float, float] = (0.0, 0.0),
+) -> np.ndarray:
     """The IMU's rotation from t0 to t1 [ns] by the gyro alone (rates held over each sample
-    interval, `bias` removed): R_imu(t0)^T R_imu(t1)."""
+    interval, the bias removed): R_imu(t0)^T R_imu(t1).
+
+    The bias is `bias` throughout, or, given `bias_end` (the bias at t1), the mean of a random
+    walk pinned at both ends: it moves from `bias` to `bias_end` in proportion to the walk's
+    variance accumulated so far, at `walk` = (a, c) [rad/s/sqrt(s), per rad/s of rate] the
+    rate a^2 + (c |w|)^2, so a bias that moves in motion moves where the tool turned."""
     k = np.flatnonzero((t_ns > t0) & (t_ns <= t1))
     R = np.eye(3)
     if len(k) < 2:
         return R
     dt = np.diff(t_ns[k]) * 1e-9
-    for wi, dti in zip(w_imu[k[:-1]] - bias, dt, strict=True):
+    w = w_imu[k[:-1]] - bias
+    if bias_end is not None:
+        a, c = walk
+        rate = a**2 + (c * np.linalg.norm(w, axis=1)) ** 2
+        acc = np.cumsum(rate * dt)
+        if acc[-1] > 0:
+            w = w - np.outer((acc - 0.5 * rate * dt) / acc[-1], np.asarray(bias_end) - bias)  # mid-interval
+    for wi, dti in zip(w, dt, strict=True):
         R = R @ so3_exp(wi * dti)
     return R
 
@@ -158,9 +183,12 @@ def _blend_gyro(
     bias: np.ndarray,
     R_tool_imu: np.ndarray,
     prm: StaticParams,
+    bias_end: np.ndarray | None = None,
 ) -> np.ndarray:
-    """W_post's attitude blended with W_pre's carried by the gyro (see the module docstring)."""
-    G = R_tool_imu @ gyro_link(t_ns, w_imu, t0, t1, bias) @ R_tool_imu.T
+    """W_post's attitude blended with W_pre's carried by the gyro (see the module docstring);
+    `bias_end`: the bias at rest in W_post, the walk's other end."""
+    walk = (np.radians(prm.gyro_bias_rw_dps_rts), np.radians(prm.gyro_bias_rw_dps_rts_per_radps))
+    G = R_tool_imu @ gyro_link(t_ns, w_imu, t0, t1, bias, bias_end, walk) @ R_tool_imu.T
     theta_deg = float(np.degrees(rotation_angle(G)))
     sa2 = prm.relrot_absolute_deg**2
     weight = sa2 / (sa2 + (prm.relrot_gyro_per_deg * theta_deg) ** 2) if sa2 > 0 else 0.0
@@ -211,7 +239,7 @@ def estimate_trials(
         + [(w.post_ns[0], w.post_ns[1], i, 1) for i, w in enumerate(trials)]
     )
     got: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
-    bias_pre: dict[int, list[np.ndarray]] = {}  # gyro rates in W_pre's tail: at rest, the bias
+    bias_rest: dict[tuple[int, int], list[np.ndarray]] = {}  # gyro rates in each window's tail: at rest, the bias
     b = 0
     start = int(np.searchsorted(t_ev, a0))
     for t, kind, payload in ev[start:]:
@@ -226,8 +254,7 @@ def estimate_trials(
             tail_lo = hi - window_tail * (hi - lo)
             if t >= tail_lo and filt.still:
                 got.setdefault((i, which), []).append((s.tip(calib.rcm_base_m), s.R.copy()))
-                if which == 0:
-                    bias_pre.setdefault(i, []).append(np.asarray(payload, float))
+                bias_rest.setdefault((i, which), []).append(np.asarray(payload, float))
         else:
             filt.propagate(s, t)
             if kind == 1 and "accel" in updates:
@@ -247,10 +274,10 @@ def estimate_trials(
             continue
         tp, tq = np.mean([x[0] for x in pre], 0), np.mean([x[0] for x in post], 0)
         Rp, Rq = _mean_rotation([x[1] for x in pre]), _mean_rotation([x[1] for x in post])
-        if i in bias_pre:
-            Rq = _blend_gyro(
-                Rp, Rq, gyro_t, gyro_w, w.pre_ns[1], w.post_ns[0], np.mean(bias_pre[i], 0), mounting, filt.p
-            )
+        if (i, 0) in bias_rest:
+            b_pre = np.mean(bias_rest[(i, 0)], 0)
+            b_post = np.mean(bias_rest[(i, 1)], 0) if filt.p.relrot_bias_end and (i, 1) in bias_rest else None
+            Rq = _blend_gyro(Rp, Rq, gyro_t, gyro_w, w.pre_ns[1], w.post_ns[0], b_pre, mounting, filt.p, b_post)
         Rrel = Rq @ Rp.T
         out.append(TrialEstimate(w, tp, tq, Rp, Rq, tq - tp, A @ (tq - tp), Rrel, np.degrees(so3_log(Rrel))))
     return out, dict(s.counts)

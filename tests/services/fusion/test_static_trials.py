@@ -27,6 +27,28 @@ def test_gyro_link_integrates_between_the_windows_with_the_bias_removed():
     assert np.allclose(gyro_link(t, w, t[10], t[11], BIAS), np.eye(3))  # fewer than two samples
 
 
+def test_gyro_link_walks_the_bias_between_the_two_rest_rates_where_the_tool_turned():
+    """Still for a second, then turning at W for a second while the bias moves from BIAS to b1
+    evenly over the turn (a walk that moves only in motion); the sample at index i is held over
+    [t_i, t_i+1], and the link spans t_0 to t_400."""
+    t = (np.arange(401) * 5_000_000).astype(np.int64)  # 200 Hz, 2 s
+    b1 = BIAS + np.array([0.01, -0.02, 0.015])  # rad/s: 0.6-1.1 deg/s, far above a rest's noise
+    i = np.arange(401)
+    turning = (i >= 200)[:, None]
+    frac = np.clip((i - 200 + 0.5) / 200, 0.0, 1.0)[:, None]  # of the change, mid-interval
+    w = np.where(turning, W + BIAS + frac * (b1 - BIAS), BIAS)
+    truth = so3_exp(W * 200 * 0.005)
+    walk = (0.0, np.radians(0.35))  # no walk at rest: the bias moves only while the tool turns
+    err = {
+        "pinned": gyro_link(t, w, t[0], t[400], BIAS, b1, walk),
+        "held": gyro_link(t, w, t[0], t[400], BIAS),  # W_pre's rate throughout
+        "in time": gyro_link(t, w, t[0], t[400], BIAS, b1, (np.radians(1.0), 0.0)),  # walking with time alone
+    }
+    err = {k: np.degrees(rotation_angle(G.T @ truth)) for k, G in err.items()}
+    # pinned: exact but for |w| varying by a few % over the turn (the walk's rate goes with |w|^2)
+    assert err["pinned"] < 0.05 and err["held"] > 0.6 and err["in time"] > 0.3, err
+
+
 def test_blend_moves_the_post_attitude_towards_the_gyro_link_less_for_larger_turns():
     t, w = _stream(seconds=4.0)
     M = so3_exp(np.radians([1.0, -2.0, 30.0]))  # R_tool_imu
