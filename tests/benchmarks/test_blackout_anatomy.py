@@ -1,0 +1,80 @@
+"""The blackout benchmark recovers the bench's gyro walk from the recording and ties the heading
+lost over a blackout to it: with the walk (and the scale error, which reads as a bias that moves
+with the rate) switched off the recovered bias does not move and the held bias drifts by nothing; with a walk ten times the bench's the heading lost over each blackout
+follows the drift of the bias held from its start."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from benchmarks import blackout_anatomy
+from tiplog.cli import main as tiplog_main
+
+pytestmark = pytest.mark.slow
+
+
+def _session(path, *sets):
+    args = [
+        "sim",
+        "generate",
+        "--scenario",
+        "sweeps",
+        "--seed",
+        "7",
+        "--duration",
+        "120",
+        "--out",
+        str(path),
+        "--quiet",
+    ]
+    for s in sets:
+        args += ["--set", s]
+    assert tiplog_main(args) == 0
+    return path
+
+
+def _rows(tmp_path, session):
+    out = tmp_path / f"{session.stem}.json"
+    assert blackout_anatomy.main([str(session), "--length", "10", "--count", "6", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert len(rows) >= 3 and {r["session"] for r in rows} == {session.name}
+    return rows
+
+
+def test_the_heading_lost_in_a_blackout_follows_the_gyro_walk(tmp_path):
+    still = _rows(
+        tmp_path,
+        _session(
+            tmp_path / "still.mcap",
+            "gyro.bias_rw_motion_dps_rts_per_radps=0",
+            "gyro.bias_rw_static_dps_rts=0",
+            "gyro.scale_sd=0",
+        ),
+    )
+    for r in still:
+        assert r["bias_walk_dps"] < 0.05, r  # the recovered bias stays put (white noise left)
+        # what drifts is the bias error the blackout began with, held for its 10 s
+        assert abs(r["gyro_drift_deg"]) <= 10.0 * r["bias_error_start_dps"] + 0.1, r
+        assert abs(r["heading_change_deg"]) < 1.0, r
+    walking = _rows(tmp_path, _session(tmp_path / "walking.mcap", "gyro.bias_rw_motion_dps_rts_per_radps=3.5"))
+    assert max(r["bias_walk_dps"] for r in walking) > 0.3
+    h = np.array([r["heading_change_deg"] for r in walking])
+    d = np.array([r["gyro_drift_deg"] for r in walking])
+    assert np.max(np.abs(d)) > 5.0
+    # nothing else holds the heading for 10 s: not gravity, not the RCM, hardly the ToF
+    assert np.corrcoef(h, d)[0, 1] > 0.9
+    assert 0.7 < np.polyfit(d, h, 1)[0] < 1.3
+
+
+def test_a_recording_without_the_truth_is_one_line_and_status_2(tmp_path, capsys):
+    src = _session(tmp_path / "s.mcap")
+    from tests.services.fusion.sessions import rewrite
+
+    dst = tmp_path / "no_truth.mcap"
+    rewrite(src, dst, lambda t: True, lambda name: name != "calibration_truth")
+    assert blackout_anatomy.main([str(dst)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calibration_truth" in err[0]
