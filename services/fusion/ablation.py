@@ -26,7 +26,7 @@ import logging
 import os
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from services.fusion.runner import FusionRunner
 from tiplog import vision_geometry as vg
 from tiplog.calibration import Calibration
 from tiplog.mcap_io import read_metadata
+from tiplog.procpool import process_pool
 
 log = logging.getLogger("tiplog.evaluate")
 
@@ -265,7 +266,7 @@ def run_jobs(
     os.cpu_count()); results in the order of `jobs`. `progress` gets one line per finished job."""
     workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     out: list[dict[str, Any] | None] = [None] * len(jobs)
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    with process_pool(workers) as pool:
         futures = {pool.submit(_worker, j): i for i, j in enumerate(jobs)}
         for done, f in enumerate(as_completed(futures), 1):
             r = f.result()

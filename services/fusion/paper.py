@@ -26,11 +26,12 @@ import os
 import subprocess
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
 from services.fusion.evaluation import public
+from tiplog.procpool import process_pool
 from tiplog.userio import UserError
 
 log = logging.getLogger("tiplog.evaluate")
@@ -247,7 +248,7 @@ def analyse(out: Path, jobs: int, say) -> dict[str, Any]:
     ablations_on = "calibrate"  # or "as_calibrated" if calibrate fails
     tasks = _tasks(out)
     total = len(tasks) + sum(len(v) for v in AFTER_CALIBRATE.values())
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with process_pool(jobs) as pool:
         pending: set[Future] = {pool.submit(_run_task, *t) for t in tasks}
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
