@@ -42,7 +42,7 @@ from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.runner import FusionRunner
 from tiplog.calibration import Calibration, CalibrationError
-from tiplog.geometry import so3_log
+from tiplog.geometry import quat_to_rot, so3_log
 from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError
 
@@ -108,7 +108,7 @@ def analyse(
         raise EvaluationError(f"{session}: the filter published no state")
     t_est = np.array([x.stamp_ns for x in states], np.int64)
     tip = np.array([x.p_tip_base_m for x in states])
-    q = np.array([x.q_base_tool for x in states])  # w, x, y, z
+    R_est = quat_to_rot(np.roll(np.array([x.q_base_tool for x in states]), -1, axis=1))  # w, x, y, z -> x, y, z, w
     bg = np.array([x.gyro_bias_radps for x in states])
     tb, b_true = true_gyro_bias(s, bias_window_s)
     R_ti = s.truth.R_tool_imu
@@ -121,8 +121,8 @@ def analyse(
         tk = t_est[k]
         err = np.linalg.norm(tip[k] - truth_p(s, tk), axis=1) * 1e3
         start, end = np.flatnonzero(k)[[0, -1]]
-        R_est_end = _quat_R(q[end])
-        heading_deg = [_heading_error_deg(_quat_R(q[i]), truth_R(s, t_est[i : i + 1])[0]) for i in (start, end)]
+        R_est_end = R_est[end]
+        heading_deg = [_heading_error_deg(R_est[i], truth_R(s, t_est[i : i + 1])[0]) for i in (start, end)]
         p_true = truth_p(s, tk[-1:])[0]
         depth_err_mm = float((np.dot(tip[end] - rcm, R_est_end[:, 2]) - np.linalg.norm(p_true - rcm)) * 1e3)
         # the bias held from the start against the walking truth, its vertical part in the base frame
@@ -155,17 +155,6 @@ def analyse(
 def _heading_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
     """The estimate's turn from the truth about the base frame's vertical [deg]."""
     return float(np.degrees(so3_log(R_est @ R_true.T)[2]))
-
-
-def _quat_R(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def main(argv: list[str] | None = None) -> int:
