@@ -36,11 +36,11 @@ from pathlib import Path
 import numpy as np
 
 from services.bench.report.data import load, truth_p, truth_R
-from services.fusion.ablation import BLACKOUT_COUNT, blackout_spans, degrade, sessions_blackouts
+from services.fusion.ablation import BLACKOUT_COUNT, blackout_spans, degrade, run_states, sessions_blackouts
+from services.fusion.calibrate_block import robot_body_rate
 from services.fusion.evaluation import EvaluationError, block_windows
-from services.fusion.params import Params, parse_sensors
+from services.fusion.params import Params
 from services.fusion.run_cli import iter_inputs
-from services.fusion.runner import FusionRunner
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.geometry import quat_to_rot, so3_log
 from tiplog.mcap_io import read_metadata
@@ -57,9 +57,7 @@ def true_gyro_bias(s, window_s: float) -> tuple[np.ndarray, np.ndarray]:
     t = g["t"] - int(round(s.truth.latency_ms.get("gyro", 0.0) * 1e6))  # event time
     keep = (t > s.robot_t[0]) & (t < s.robot_t[-1])
     t, w_meas = t[keep], g["v"][keep]
-    dt = np.diff(s.robot_t) * 1e-9
-    w_tool = so3_log(np.einsum("nji,njk->nik", s.robot_R[:-1], s.robot_R[1:])) / dt[:, None]
-    tm = (s.robot_t[:-1] + s.robot_t[1:]) // 2
+    tm, w_tool = robot_body_rate(s.robot_t, s.robot_R)
     w_imu = np.stack([np.interp(t, tm, w_tool[:, j]) for j in range(3)], 1) @ s.truth.R_tool_imu
     b = w_meas - w_imu
     edges = np.arange(t[0], t[-1], int(window_s * 1e9))
@@ -97,13 +95,7 @@ def analyse(
         raise EvaluationError(f"{session}: no continuous blocks (sweeps, teleop, demo)")
     spans = blackout_spans(blocks, int(length_s * 1e9), count)
     name = f"blackout{length_s:g}"
-    runner = FusionRunner(calib, params, parse_sensors(sensors))
-    states = []
-    for topic, msg, arr in degrade(name, iter_inputs(session, {}), blocks, blackouts=count):
-        runner.feed(topic, msg, arr)
-        if topic == "device/gyro":
-            states += runner.advance(arr)
-    states += runner.finish()
+    states, _ = run_states(degrade(name, iter_inputs(session, {}), blocks, blackouts=count), calib, params, sensors)
     if not states:
         raise EvaluationError(f"{session}: the filter published no state")
     t_est = np.array([x.stamp_ns for x in states], np.int64)

@@ -36,6 +36,7 @@ from services.fusion.evaluation import Estimate, block_windows, load_truth, read
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.runner import FusionRunner
+from services.fusion.sample import StateSample
 from tiplog import vision_geometry as vg
 from tiplog.calibration import Calibration
 from tiplog.mcap_io import read_metadata
@@ -190,18 +191,27 @@ def run_variant(
     msgs: Iterable[tuple], calib: Calibration, params: Params, sensors: str
 ) -> tuple[Estimate, dict, float]:
     """The tracking filter over `msgs` in arrival order: (estimate, diagnostics, CPU seconds)."""
-    runner = FusionRunner(calib, params, parse_sensors(sensors))
     t0 = time.process_time()
-    states = []
+    states, runner = run_states(msgs, calib, params, sensors)
+    cpu = time.process_time() - t0
+    tip = np.array([s.p_tip_base_m for s in states], float).reshape(-1, 3)
+    est = Estimate(np.array([s.stamp_ns for s in states], np.int64), tip)
+    return est, runner.diagnostics(), cpu
+
+
+def run_states(
+    msgs: Iterable[tuple], calib: Calibration, params: Params, sensors: str
+) -> tuple[list[StateSample], FusionRunner]:
+    """The tracking filter over `msgs` in arrival order, advanced at every gyro arrival: every
+    published state, and the runner (for its diagnostics)."""
+    runner = FusionRunner(calib, params, parse_sensors(sensors))
+    states: list[StateSample] = []
     for topic, msg, arr in msgs:
         runner.feed(topic, msg, arr)
         if topic == "device/gyro":
             states += runner.advance(arr)
     states += runner.finish()
-    cpu = time.process_time() - t0
-    tip = np.array([s.p_tip_base_m for s in states], float).reshape(-1, 3)
-    est = Estimate(np.array([s.stamp_ns for s in states], np.int64), tip)
-    return est, runner.diagnostics(), cpu
+    return states, runner
 
 
 def variants() -> list[str]:
