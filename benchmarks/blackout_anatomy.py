@@ -15,7 +15,11 @@ benchmark, never in an estimator), reports:
   would give over the blackout with the true bias as it walked: the integral of the vertical
   component (in the base frame) of true minus estimated-at-start bias. Where that drift is
   close to the heading the filter lost over the blackout, the gyro's walk set the cost; the
-  correlation and slope of the two over all blackouts are printed.
+  correlation and slope of the two over all blackouts are printed;
+- the filter's own heading sigma at the blackout's start and end (its covariance, read as it
+  runs), and the heading lost in units of that sigma's growth: an RMS over the blackouts near 1
+  says the filter's heading uncertainty through a blackout is honest, a larger one that it
+  is overconfident.
 
 The true bias is the gyro's reading less the robot's rate in IMU axes (the session's
 `calibration_truth` mounting and latency), averaged over `--bias-window` seconds: the gyro's
@@ -95,7 +99,9 @@ def analyse(
         raise EvaluationError(f"{session}: no continuous blocks (sweeps, teleop, demo)")
     spans = blackout_spans(blocks, int(length_s * 1e9), count)
     name = f"blackout{length_s:g}"
-    states, _ = run_states(degrade(name, iter_inputs(session, {}), blocks, blackouts=count), calib, params, sensors)
+    sigma = _HeadingSigma()
+    msgs = degrade(name, iter_inputs(session, {}), blocks, blackouts=count)
+    states, _ = run_states(msgs, calib, params, sensors, probe=sigma)
     if not states:
         raise EvaluationError(f"{session}: the filter published no state")
     t_est = np.array([x.stamp_ns for x in states], np.int64)
@@ -115,6 +121,7 @@ def analyse(
         start, end = np.flatnonzero(k)[[0, -1]]
         R_est_end = R_est[end]
         heading_deg = [_heading_error_deg(R_est[i], truth_R(s, t_est[i : i + 1])[0]) for i in (start, end)]
+        sigma_deg = [sigma.at(t_est[i]) for i in (start, end)]
         p_true = truth_p(s, tk[-1:])[0]
         depth_err_mm = float((np.dot(tip[end] - rcm, R_est_end[:, 2]) - np.linalg.norm(p_true - rcm)) * 1e3)
         # the bias held from the start against the walking truth, its vertical part in the base frame
@@ -135,6 +142,8 @@ def analyse(
                 "heading_start_deg": heading_deg[0],
                 "heading_end_deg": heading_deg[1],
                 "heading_change_deg": heading_deg[1] - heading_deg[0],
+                "heading_sigma_start_deg": sigma_deg[0],
+                "heading_sigma_end_deg": sigma_deg[1],
                 "depth_end_mm": depth_err_mm,
                 "bias_error_start_dps": float(np.degrees(np.linalg.norm(bg[start] - b_true_k[0]))),
                 "bias_walk_dps": float(walk),
@@ -142,6 +151,35 @@ def analyse(
             }
         )
     return rows
+
+
+class _HeadingSigma:
+    """The filter's own heading 1-sigma [deg] (its attitude covariance about the base frame's
+    vertical) read at its head after every advance, kept every `every_ns`: what the filter
+    believes it may have lost, beside what it lost."""
+
+    def __init__(self, every_ns: int = 20_000_000):
+        self.every_ns = every_ns
+        self.t: list[int] = []
+        self.sd: list[float] = []
+
+    def __call__(self, runner) -> None:
+        s = runner.head
+        if s is None or (self.t and s.t_ns - self.t[-1] < self.every_ns):
+            return
+        z = s.R[2]  # the base vertical in tool coordinates (R^T e_z): the local error's direction
+        self.t.append(int(s.t_ns))
+        self.sd.append(float(np.degrees(np.sqrt(max(z @ s.P[6:9, 6:9] @ z, 0.0)))))
+
+    def at(self, t_ns: int) -> float:
+        return float(np.interp(t_ns, self.t, self.sd)) if self.t else float("nan")
+
+
+def heading_z(rows: list[dict]) -> np.ndarray:
+    """Each blackout's heading change over the growth of the filter's heading sigma,
+    sqrt(end^2 - start^2): an RMS near 1 says the sigma shown was honest, above 1 overconfident."""
+    grow = np.array([max(r["heading_sigma_end_deg"] ** 2 - r["heading_sigma_start_deg"] ** 2, 1e-12) for r in rows])
+    return np.array([r["heading_change_deg"] for r in rows]) / np.sqrt(grow)
 
 
 def _heading_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
@@ -182,13 +220,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"blackout_anatomy: {e}", file=sys.stderr)
         return 2
     print(
-        "session / block @ start (s): tip RMS, end (mm) | heading at start, end (deg) | depth at end (mm) | "
+        "session / block @ start (s): tip RMS, end (mm) | heading error at start, end (deg; the filter's sigma) | "
+        "depth at end (mm) | "
         "bias error at start, true walk (deg/s) | heading drift of the held bias (deg)"
     )
     for r in rows:
         print(
             f"{r['session']} / {r['block']} @ {r['start_s']:.1f}: {r['tip_rms_mm']:.2f}, {r['tip_end_mm']:.2f} | "
-            f"{r['heading_start_deg']:+.2f}, {r['heading_end_deg']:+.2f} | {r['depth_end_mm']:+.2f} | "
+            f"{r['heading_start_deg']:+.2f} ({r['heading_sigma_start_deg']:.2f}), "
+            f"{r['heading_end_deg']:+.2f} ({r['heading_sigma_end_deg']:.2f}) | {r['depth_end_mm']:+.2f} | "
             f"{r['bias_error_start_dps']:.3f}, {r['bias_walk_dps']:.3f} | {r['gyro_drift_deg']:+.2f}"
         )
     if len(rows) > 2:
@@ -197,6 +237,11 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"heading lost over a blackout vs the held bias's drift: correlation {np.corrcoef(h, d)[0, 1]:.2f}, "
             f"slope {np.polyfit(d, h, 1)[0]:.2f} over {len(rows)}"
+        )
+        z = heading_z(rows)
+        print(
+            f"heading lost over a blackout in units of the filter's own sigma growth: RMS {np.sqrt(np.mean(z**2)):.2f}, "
+            f"largest {np.max(np.abs(z)):.1f} (1: the heading sigma is honest; above: overconfident)"
         )
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1))

@@ -200,16 +200,23 @@ def run_variant(
 
 
 def run_states(
-    msgs: Iterable[tuple], calib: Calibration, params: Params, sensors: str
+    msgs: Iterable[tuple],
+    calib: Calibration,
+    params: Params,
+    sensors: str,
+    probe: Callable[[FusionRunner], None] | None = None,
 ) -> tuple[list[StateSample], FusionRunner]:
     """The tracking filter over `msgs` in arrival order, advanced at every gyro arrival: every
-    published state, and the runner (for its diagnostics)."""
+    published state, and the runner (for its diagnostics). `probe`, if given, sees the runner
+    after every advance (a benchmark reading the filter's covariance at its head)."""
     runner = FusionRunner(calib, params, parse_sensors(sensors))
     states: list[StateSample] = []
     for topic, msg, arr in msgs:
         runner.feed(topic, msg, arr)
         if topic == "device/gyro":
             states += runner.advance(arr)
+            if probe is not None:
+                probe(runner)
     states += runner.finish()
     return states, runner
 

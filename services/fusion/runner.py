@@ -195,6 +195,12 @@ class FusionRunner:
             self._publish_next(out)
         return out
 
+    @property
+    def head(self) -> State | None:
+        """The filter's state after the newest event processed: its covariance too, which the
+        published samples summarise (None before the filter starts and while it restarts)."""
+        return self._track.state
+
     def history(self) -> list[StateSample]:
         """The kept history (the last history_ms) as the filter now has it, every late
         measurement applied at its time: what the published states converge to once all

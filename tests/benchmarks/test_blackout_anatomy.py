@@ -1,7 +1,8 @@
 """The blackout benchmark recovers the bench's gyro walk from the recording and ties the heading
 lost over a blackout to it: with the walk (and the scale error, which reads as a bias that moves
 with the rate) switched off the recovered bias does not move and the held bias drifts by nothing; with a walk ten times the bench's the heading lost over each blackout
-follows the drift of the bias held from its start."""
+follows the drift of the bias held from its start. The filter's own heading sigma, which
+expects the bench's walk, covers the first and not the second."""
 
 from __future__ import annotations
 
@@ -59,6 +60,8 @@ def test_the_heading_lost_in_a_blackout_follows_the_gyro_walk(tmp_path):
         # what drifts is the bias error the blackout began with, held for its 10 s
         assert abs(r["gyro_drift_deg"]) <= 10.0 * r["bias_error_start_dps"] + 0.1, r
         assert abs(r["heading_change_deg"]) < 1.0, r
+    # the filter expects the bench's walk, which is off here: it loses less than it fears
+    assert np.sqrt(np.mean(blackout_anatomy.heading_z(still) ** 2)) < 1.0
     walking = _rows(tmp_path, _session(tmp_path / "walking.mcap", "gyro.bias_rw_motion_dps_rts_per_radps=3.5"))
     assert max(r["bias_walk_dps"] for r in walking) > 0.3
     h = np.array([r["heading_change_deg"] for r in walking])
@@ -67,6 +70,10 @@ def test_the_heading_lost_in_a_blackout_follows_the_gyro_walk(tmp_path):
     # nothing else holds the heading for 10 s: not gravity, not the RCM, hardly the ToF
     assert np.corrcoef(h, d)[0, 1] > 0.9
     assert 0.7 < np.polyfit(d, h, 1)[0] < 1.3
+    # a walk ten times the one the filter expects: it loses far more than its sigma says
+    assert np.sqrt(np.mean(blackout_anatomy.heading_z(walking) ** 2)) > 2.0
+    for r in walking:
+        assert 0.0 < r["heading_sigma_start_deg"] < r["heading_sigma_end_deg"], r
 
 
 def test_a_recording_without_the_truth_is_one_line_and_status_2(tmp_path, capsys):
