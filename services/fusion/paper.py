@@ -300,6 +300,8 @@ def gather(results: dict[str, Any], errors: dict[str, str], ablations_on: str = 
             for m in ("tip_rmse_mm", "tip_p95_mm", "block_mean_mm", "coverage", "resets", "blackouts"):
                 if m in r:
                     row.setdefault(m, {})[scen] = r[m]
+            if key == "subsets" and r.get("blocks"):  # block names are unique over the sessions
+                row.setdefault("block_rmse_mm", {}).update({b["name"]: b["tip_rmse_mm"] for b in r["blocks"]})
             if variant == "full" and res["ablations_calibration"] == "calibrate":
                 res["dynamic"].setdefault(scen, {})["calibrated"] = r
         elif name.startswith("as_calibrated:"):

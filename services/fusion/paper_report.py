@@ -260,6 +260,7 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
             f"| {name} | {cell(d, 'sweeps')} [{cell(d, 'sweeps', 'tip_p95_mm')}] | {cell(d, 'teleop')} "
             f"[{cell(d, 'teleop', 'tip_p95_mm')}] | {pp:.2f} [{pp95}] | {pt:.2f} [{pt95}] |"
         )
+    lines += subsets_by_block_md(sub)
     lines += [
         "",
         "| Vision | Programmed block mean (pooled) | Teleoperated block mean (pooled) | paper programmed | paper teleoperated |",
@@ -289,6 +290,30 @@ def ablation_md(res: dict[str, Any]) -> list[str]:
             else "the sessions' as-calibrated metadata (calibrate failed)."
         )
     )
+    return lines
+
+
+def subsets_by_block_md(sub: dict[str, Any]) -> list[str]:
+    """Each block's RMSE under every sensor subset, and where full fusion is the best of them
+    (the paper: "the best combination in all seven blocks"); nothing without per-block results."""
+    names = [n for n in PAPER_SUBSETS if sub.get(n, {}).get("block_rmse_mm")]
+    if "full" not in names or len(names) < 2:
+        return []
+    blocks = list(sub["full"]["block_rmse_mm"])
+    lines = ["", "| Block | " + " | ".join(names) + " | best |", "| --- |" + " --- |" * (len(names) + 1)]
+    won, lost = 0, []
+    for b in blocks:
+        vals = {n: sub[n]["block_rmse_mm"].get(b) for n in names}
+        scored = {n: v for n, v in vals.items() if v is not None}
+        others = {n: v for n, v in scored.items() if n != "full"}
+        best = min(scored, key=scored.__getitem__)
+        if "full" in scored and others and scored["full"] <= min(others.values()):
+            won, best = won + 1, "full"  # a tie goes to full fusion
+        elif "full" in scored and others:
+            lost.append(f"{b} by {scored['full'] - scored[best]:.3f} mm to {best}")
+        lines.append(f"| {b} | " + " | ".join(_f(vals[n], 3) for n in names) + f" | {best} |")
+    verdict = f"Full fusion is the best combination in {won} of {len(blocks)} blocks (the paper: all seven)"
+    lines.append("\n" + verdict + (f"; it loses {', '.join(lost)}." if lost else "."))
     return lines
 
 

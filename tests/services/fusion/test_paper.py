@@ -62,6 +62,34 @@ def test_ablations_say_which_calibration_they_ran_with():
     assert "| full | 1.00 [2.00]" in md
 
 
+def test_the_subsets_are_compared_block_by_block():
+    def row(rmse, **blocks):
+        return {
+            "kind": "subset", "tip_rmse_mm": rmse, "tip_p95_mm": 2 * rmse, "block_mean_mm": rmse, "coverage": 1.0,
+            "resets": 0, "blocks": [{"name": n, "tip_rmse_mm": v} for n, v in blocks.items()],
+        }  # fmt: skip
+
+    results = {
+        "ablation:sweeps:full": row(0.8, sweep_pitch=0.81, sweep_roll=0.79),
+        "ablation:sweeps:imu_vision": row(0.85, sweep_pitch=0.90, sweep_roll=0.75),
+        "ablation:sweeps:imu_tof": row(40.0, sweep_pitch=30.0, sweep_roll=50.0),
+        "ablation:teleop:full": row(0.9, teleop1=0.9),
+        "ablation:teleop:imu_vision": row(0.9, teleop1=0.9),  # a tie goes to full fusion
+        "ablation:teleop:imu_tof": row(20.0, teleop1=20.0),
+    }
+    res = gather(results, {})
+    assert res["subsets"]["full"]["block_rmse_mm"] == {"sweep_pitch": 0.81, "sweep_roll": 0.79, "teleop1": 0.9}
+    md = "\n".join(ablation_md(res))
+    assert "| sweep_pitch | 30.000 | 0.900 | 0.810 | full |" in md
+    assert "| sweep_roll | 50.000 | 0.750 | 0.790 | imu_vision |" in md
+    assert "| teleop1 | 20.000 | 0.900 | 0.900 | full |" in md
+    assert "best combination in 2 of 3 blocks (the paper: all seven); it loses sweep_roll by 0.040 mm" in md
+    # without per-block results (an older report) the table is left out, not filled with n/a
+    for r in results.values():
+        del r["blocks"]
+    assert "best combination" not in "\n".join(ablation_md(gather(results, {})))
+
+
 def test_the_blackout_rows_say_how_many_and_the_papers_placement_comes_first():
     row = {"kind": "degraded", "tip_rmse_mm": 1.0, "tip_p95_mm": 2.0, "block_mean_mm": 1.0, "coverage": 1.0}
     results = {}
@@ -114,5 +142,7 @@ def test_paper_quick_end_to_end(tmp_path):
     for title in ("Static stability", "Observation latency", "Translation", "Rotation", "Magnetometer", "Dynamic"):
         assert f"## {title}" in md
     assert f"{PAPER_TRANSLATION_STEPS['All'][0]:.2f} [" in md  # the paper's figure beside ours
+    assert "best combination in" in md and "of 7 blocks" in md
+    assert set(rep["subsets"]["full"]["block_rmse_mm"]) >= {"sweep_pitch", "sweep_roll", "sweep_depth", "teleop1"}
     for png in ("translation_boxplots.png", "rotation_boxplots.png", "ablations.png", "sweep_pitch.png"):
         assert (out / png).stat().st_size > 5_000
