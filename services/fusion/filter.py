@@ -24,7 +24,7 @@ import numpy as np
 from services.fusion import kernels
 from services.fusion.init import closest_params, initial_rotation, perp_basis
 from services.fusion.params import SENSORS, Params
-from services.fusion.tof_map import TofMap
+from services.fusion.tof_map import AccelMap, TofMap
 from tiplog.calibration import Calibration
 
 N = 16
@@ -61,7 +61,7 @@ class State:
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "accel_n", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
-        "t_init_ns", "tof_last", "rest", "tip_held",
+        "t_init_ns", "tof_last", "rest", "tip_held", "f_corr", "f_corr_ns", "acc", "acc_bin", "acc_t",
     )  # fmt: skip
 
     def copy(self) -> State:
@@ -71,6 +71,8 @@ class State:
         s.accel_n, s.last_tip_ns, s.last_vision_ns = self.accel_n, self.last_tip_ns, self.last_vision_ns
         s.vis_reject_run, s.reacq, s.tof_last = self.vis_reject_run, self.reacq, self.tof_last
         s.tip_held = self.tip_held
+        s.f_corr, s.f_corr_ns = self.f_corr.copy(), self.f_corr_ns
+        s.acc, s.acc_bin, s.acc_t = self.acc.copy(), self.acc_bin, self.acc_t
         s.p, s.v, s.R, s.P = self.p.copy(), self.v.copy(), self.R.copy(), self.P.copy()
         s.bg, s.ba = self.bg.copy(), self.ba.copy()
         s.w_imu, s.f_imu, s.alpha_tool = self.w_imu.copy(), self.f_imu.copy(), self.alpha_tool.copy()
@@ -164,6 +166,19 @@ class TrackingFilter:
             if p.tof_map and self.tof and self.vision
             else None
         )
+        self.accel_map = (
+            AccelMap(
+                p.accel_map_sigma_deg, p.accel_map_sigma_mm, p.accel_map_bin_ms, p.accel_map_window_s,
+                p.accel_map_prior_weight,
+            )
+            if p.accel_map and self.imu and self.vision
+            else None
+        )  # fmt: skip
+        # the pose maps kept here, those switched on: the runner cuts their tails when it
+        # rewinds and forgets what a diverging state taught them
+        self.maps = tuple(m for m in (self.tof_map, self.accel_map) if m is not None)
+        self._accel_map_every_ns = int(p.accel_map_every_ms * 1e6)
+        self._accel_bin_ns = int(p.accel_map_bin_ms * 1e6)
 
     # ------------------------------------------------------------------ initialisation
     def new_state(self, t_ns: int, R: np.ndarray, depth_m: float, f_imu: np.ndarray | None) -> State:
@@ -199,6 +214,11 @@ class TrackingFilter:
         s.tof_last = (-(1 << 62), 0.0)  # (t_ns, range_m) of the last ToF range applied
         s.reacq = ()  # (t_ns, phi_base (3,), dp_base_m (3,)) of frames gated out on innovation
         s.tip_held = None  # (t_ns, residual_cam_m (3,), replaced a dropped one) of a tip awaiting confirmation
+        s.f_corr = np.zeros(3)  # the accelerometer map's correction taken off each sample (IMU frame)
+        s.f_corr_ns = -(1 << 62)
+        s.acc = np.zeros(16)  # the accelerometer map's open bin (`kernels.gravity_step`)
+        s.acc_bin = -(1 << 62)  # which bin (time // bin length) it is
+        s.acc_t = 0  # its last sample's time
         return s
 
     def init_from_vision(self, t_ns: int, obs: dict, f_imu: np.ndarray | None) -> State | None:
@@ -298,6 +318,12 @@ class TrackingFilter:
         if not self.imu:
             return
         s.f_imu = np.asarray(f_imu, float)
+        amap = self.accel_map
+        if amap is not None:
+            if t_ns - s.f_corr_ns >= self._accel_map_every_ns:
+                s.f_corr_ns = int(t_ns)
+                s.f_corr = amap.predict(t_ns, s.R, s.p)
+            s.f_imu = s.f_imu - s.f_corr
         if self.rest_on:
             kernels.rest_sample(s.rest, s.f_imu, t_ns * 1e-9, 1, self._rest_k)
         s.accel_n += 1
@@ -375,10 +401,24 @@ class TrackingFilter:
         propagating over dt [s] (the state's time already set): one compiled call
         (`kernels.gravity_step`)."""
         free = self.brho_free(s)
-        status, nis, dbrho = kernels.gravity_step(
+        amap = self.accel_map
+        max_excess = -1.0  # recorded for the accelerometer's map: only while b_rho is free
+        if amap is not None:
+            b = s.t_ns // self._accel_bin_ns
+            if b != s.acc_bin:  # a new bin: the last one goes to the map
+                if s.acc[15] > 0.0:
+                    amap.add_bin(s.acc_t, s.acc)
+                    s.acc = np.zeros(16)
+                s.acc_bin = b
+            if free and s.t_ns - s.t_init_ns >= self._map_settle_ns:  # not from a state still converging
+                max_excess = self.prm.accel_map_max_excess
+        status, nis, dbrho, recorded = kernels.gravity_step(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
             self._Q if free else self._Q_held, self._gyro_k, dt, self._grav_k, not free, self.rcm,
+            s.acc, s.f_corr, max_excess,
         )  # fmt: skip
+        if recorded:
+            s.acc_t = s.t_ns
         if status:
             s.counts["rejected:gravity:innovation"] = s.counts.get("rejected:gravity:innovation", 0) + 1
             return False

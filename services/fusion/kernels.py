@@ -414,25 +414,90 @@ def gravity_step(
     p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
     q: np.ndarray, k: np.ndarray, dt: float, g: np.ndarray, freeze_last: bool, rcm: np.ndarray,
-) -> tuple[int, float, float]:  # fmt: skip
+    acc: np.ndarray, f_corr: np.ndarray, max_excess: float,
+) -> tuple[int, float, float, bool]:  # fmt: skip
     """What an accelerometer sample due for a gravity update does, in one call (it comes at
     every sample): `propagate_held` over dt (k as in `gyro_step`; 0 when the caller propagated
     already), then the gravity update (`gravity_jacobian`, the shaft's point at the port `rcm`
     taken at rest: `port_lever`) with the standard deviation g[0] + g[1] | |f|/g - 1 | [rad] of
-    the direction per axis and chi-square gate g[2]. Returns (status, NIS, b_rho increment),
-    status as `update`."""
+    the direction per axis and chi-square gate g[2]. Returns (status, NIS, b_rho increment,
+    recorded), status as `update`.
+
+    With max_excess >= 0 an applied update whose |f| is within max_excess of g is also
+    recorded for the accelerometer's pose map: acc (16,) sums the pose before the update
+    (R [0:9] row-major, p [9:12]) and the residual against the reading before the map's
+    correction f_corr was taken off it [12:15], and counts it [15]."""
     if dt > 0.0:
         propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, True)
     H, y = gravity_jacobian(R, R_ti, port_lever(R, p, rcm, r_lever_tool), w_held, bg, ba, alpha_tool, f_imu)
     fn = math.sqrt(f_imu[0] * f_imu[0] + f_imu[1] * f_imu[1] + f_imu[2] * f_imu[2])
-    sig = (g[0] + g[1] * abs(fn / 9.80665 - 1.0)) * 9.80665
+    excess = abs(fn / 9.80665 - 1.0)
+    record = max_excess >= 0.0 and excess <= max_excess
+    if record:
+        for i in range(3):
+            for j in range(3):
+                acc[3 * i + j] += R[i, j]
+            acc[9 + i] += p[i]
+    sig = (g[0] + g[1] * excess) * 9.80665
     r_var = np.empty(3)
     r_var[0] = r_var[1] = r_var[2] = sig * sig
     status, nis, dx = update(P, H, y, r_var, g[2], freeze_last)
     dbrho = 0.0
     if status == 0:
         dbrho = inject(p, v, R, bg, ba, dx, P)
-    return status, nis, dbrho
+        if record:
+            for i in range(3):
+                acc[12 + i] += y[i] + f_corr[i]
+            acc[15] += 1.0
+    elif record:  # not applied: the pose comes off again
+        for i in range(3):
+            for j in range(3):
+                acc[3 * i + j] -= R[i, j]
+            acc[9 + i] -= p[i]
+        record = False
+    return status, nis, dbrho, record
+
+
+@njit(cache=True)
+def kernel_mean(
+    K: np.ndarray, k2: np.ndarray, E: np.ndarray, T: np.ndarray, n: int, t_lo: int, R: np.ndarray, p: np.ndarray,
+    wk: np.ndarray, out: np.ndarray,
+) -> float:  # fmt: skip
+    """The pose maps' query (`tof_map`): of the entries 0:n with keys K (., 12), their
+    weighted square norms k2, values E (., d) and times T (ascending), those at or after t_lo,
+    weighted w_i = exp(-|K_i - q|^2_W / 2) with q the pose (R, p) as a key and W = diag(wk);
+    writes sum_i w_i E_i to out (d,) and returns sum_i w_i. Entries past 12 kernel widths (a
+    weight under 1e-31) are skipped."""
+    d = E.shape[1]
+    for c in range(d):
+        out[c] = 0.0
+    lo, hi = 0, n  # the first entry at or after t_lo
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if T[mid] < t_lo:
+            lo = mid + 1
+        else:
+            hi = mid
+    qw = np.empty(12)
+    qq = 0.0
+    for i in range(3):
+        for j in range(3):
+            qw[3 * i + j] = wk[3 * i + j] * R[i, j]
+            qq += qw[3 * i + j] * R[i, j]
+        qw[9 + i] = wk[9 + i] * p[i]
+        qq += qw[9 + i] * p[i]
+    sw = 0.0
+    for i in range(lo, n):
+        dot = 0.0
+        for c in range(12):
+            dot += K[i, c] * qw[c]
+        d2 = k2[i] - 2.0 * dot + qq
+        if d2 < 144.0:
+            w = math.exp(-0.5 * max(d2, 0.0))
+            sw += w
+            for c in range(d):
+                out[c] += w * E[i, c]
+    return sw
 
 
 @njit(cache=True)

@@ -68,7 +68,7 @@ class _Track:
         # update counts and NIS sums of the states a reset discarded: diagnostics cover the run
         self.carried: Counter[str] = Counter()
         self.carried_nis: Counter[str] = Counter()
-        self.map_mark = 0  # the ToF map's mark() when this was taken
+        self.map_mark: tuple[int, ...] = ()  # the filter's maps' mark() when this was taken
 
     def copy(self) -> _Track:
         t = _Track.__new__(_Track)
@@ -105,6 +105,7 @@ class FusionRunner:
         self._done_keys: list[tuple] = []  # processed events in key order
         self._done: list[tuple] = []
         self._track = _Track()
+        self._track.map_mark = (0,) * len(self.filt.maps)
         # snapshots after every gyro event, and one of the empty start (a frame captured before
         # the first gyro sample can still be applied at its time)
         self._snap_keys: list[tuple] = [(-(1 << 62), -1, 0)]
@@ -301,8 +302,8 @@ class FusionRunner:
         self.stats["max_rewind_ms"] = max(self.stats["max_rewind_ms"], (self._done_keys[-1][0] - key[0]) * 1e-6)
         snap_key = self._snap_keys[i]
         self._track = self._snaps[i].copy()
-        if self.filt.tof_map is not None:
-            self.filt.tof_map.rewind(self._track.map_mark)
+        for m, mark in zip(self.filt.maps, self._track.map_mark, strict=True):
+            m.rewind(mark)
         del self._snap_keys[i + 1 :]
         del self._snaps[i + 1 :]
         j = bisect.bisect_right(self._done_keys, snap_key)
@@ -324,8 +325,8 @@ class FusionRunner:
             if s is not None:
                 why = f.on_gyro(s, t, payload)
                 if why is not None:
-                    if f.tof_map is not None:  # what it learnt since the last vision tip came from a state going wrong
-                        f.tof_map.forget_after(s.last_tip_ns)
+                    for m in f.maps:  # what they learnt since the last vision tip came from a state going wrong
+                        m.forget_after(s.last_tip_ns)
                     tr.carried, tr.carried_nis = Counter(tr.carried), Counter(tr.carried_nis)
                     tr.carried.update(s.counts)
                     tr.carried_nis.update(s.nis)
@@ -357,8 +358,8 @@ class FusionRunner:
         self._done_keys.append(key)
         self._done.append(ev)
         if kind == "gyro":
-            if f.tof_map is not None:
-                tr.map_mark = f.tof_map.mark()
+            if f.maps:
+                tr.map_mark = tuple(m.mark() for m in f.maps)
             self._snap_keys.append(key)
             self._snaps.append(tr.copy())
 

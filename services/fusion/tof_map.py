@@ -8,6 +8,12 @@ with vision, the range error against the filter's geometric prediction (grouped 
 bins), and gives for a pose the kernel-weighted mean of the errors recorded near it, shrunk
 towards the held b_rho where few were recorded. It is append-only in time so that a rewind
 only has to cut its tail.
+
+The accelerometer's reading is turned by a pose-locked error too (0.21 deg across poses, the
+same on every pass): `AccelMap` keeps, for the poses visited with vision, the gravity update's
+residual (3 components), and the filter takes the kernel-weighted mean at the present pose off
+every sample. Its bins are summed in the filter's state (`kernels.gravity_step`), which a
+rewind restores, so the map takes them whole.
 """
 
 from __future__ import annotations
@@ -17,9 +23,76 @@ from collections import deque
 
 import numpy as np
 
+from services.fusion import kernels
 
-class TofMap:
-    """Range errors e [m] at poses (R (3, 3), p (3,)), binned every `bin_ns`, kept `window_ns`."""
+
+class _PoseEntries:
+    """Errors (`dim` components) at poses (R (3, 3), p (3,)), one entry per bin of `bin_ns`,
+    the newest kept and those within `window_ns` used; `predict` gives their kernel-weighted
+    mean at a pose."""
+
+    def __init__(
+        self, sigma_deg: float, sigma_mm: float, bin_ms: float, window_s: float, prior_weight: float, dim: int
+    ):
+        # |R_i - R|_F^2 ~ 2 theta^2: the orientation part of the distance is theta^2 / sigma^2
+        wr = 1.0 / (2.0 * math.radians(sigma_deg) ** 2)
+        wp = 1.0 / (sigma_mm * 1e-3) ** 2
+        self._wk = np.concatenate((np.full(9, wr), np.full(3, wp)))  # per key component
+        self.bin_ns = int(bin_ms * 1e6)
+        self.window_ns = int(window_s * 1e9)
+        self.prior_weight = float(prior_weight)
+        self.dim = int(dim)
+        # bins are distinct, so the newest `keep` entries span at least twice the window: a
+        # query a rewind's length in the past still finds all it needs after a compaction
+        self._keep = 2 * (self.window_ns // max(self.bin_ns, 1)) + 4
+        self._K = np.empty((2 * self._keep, 12))
+        self._k2 = np.empty(2 * self._keep)  # each key's weighted square norm
+        self._e = np.empty((2 * self._keep, self.dim))
+        self._t = np.empty(2 * self._keep, np.int64)  # last sample time of each bin
+        self._c = np.empty(2 * self._keep, np.int64)  # samples added up to the end of each bin
+        self._n = 0
+        self._added = 0
+        self._sum = np.empty(self.dim)
+
+    def __len__(self) -> int:
+        return self._n
+
+    @staticmethod
+    def key(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """A pose as the map stores it (a copy: take it before an update moves the state)."""
+        return np.concatenate((R.ravel(), p))
+
+    def _append(self, t_ns: int, key: np.ndarray, e) -> None:
+        if self._n == len(self._t):  # full: keep the newest half (nothing grows)
+            k = self._keep
+            for a in (self._K, self._k2, self._e, self._t, self._c):
+                a[:k] = a[-k:]
+            self._n = k
+        i = self._n
+        self._K[i] = key
+        self._k2[i] = self._wk @ (key * key)
+        self._e[i] = e
+        self._t[i] = t_ns
+        self._c[i] = self._added
+        self._n += 1
+
+    def entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(bin times (n,), pose keys (n, 12), errors (n,) at dim 1, else (n, dim)) held now,
+        oldest first: copies."""
+        n = self._n
+        e = self._e[:n, 0] if self.dim == 1 else self._e[:n]
+        return self._t[:n].copy(), self._K[:n].copy(), e.copy()
+
+    def _kernel_sum(self, t_ns: int, R: np.ndarray, p: np.ndarray) -> float:
+        """The kernel weight of the entries within the window at (R, p); their weighted sum of
+        errors is left in self._sum."""
+        return kernels.kernel_mean(
+            self._K, self._k2, self._e, self._t, self._n, int(t_ns - self.window_ns), R, p, self._wk, self._sum
+        )
+
+
+class TofMap(_PoseEntries):
+    """Range errors e [m] at poses, binned every `bin_ns` as they are added, kept `window_ns`."""
 
     def __init__(
         self,
@@ -30,35 +103,13 @@ class TofMap:
         prior_weight: float,
         rewind_ms: float = 1500.0,
     ):
-        # |R_i - R|_F^2 ~ 2 theta^2: the orientation part of the distance is theta^2 / sigma^2
-        self._wr = 1.0 / (2.0 * math.radians(sigma_deg) ** 2)
-        self._wp = 1.0 / (sigma_mm * 1e-3) ** 2
-        self.bin_ns = int(bin_ms * 1e6)
-        self.window_ns = int(window_s * 1e9)
-        self.prior_weight = float(prior_weight)
-        # bins are distinct, so the newest `keep` entries span at least twice the window: a
-        # query a rewind's length in the past still finds all it needs after a compaction
-        self._keep = 2 * (self.window_ns // max(self.bin_ns, 1)) + 4
-        self._K = np.empty((2 * self._keep, 12))
-        self._e = np.empty(2 * self._keep)
-        self._t = np.empty(2 * self._keep, np.int64)  # last sample time of each bin
-        self._c = np.empty(2 * self._keep, np.int64)  # samples added up to the end of each bin
-        self._n = 0
-        self._added = 0
+        super().__init__(sigma_deg, sigma_mm, bin_ms, window_s, prior_weight, 1)
         self._pending: list[tuple[int, np.ndarray, float]] = []
         # the samples of the newest bins, as far back as a rewind may go: a rewind into a bin
         # keeps that bin's earlier samples (they are not replayed)
         self._members: deque[list[tuple[int, np.ndarray, float]]] = deque(
             maxlen=int(rewind_ms * 1e6 // max(self.bin_ns, 1)) + 2
         )
-
-    def __len__(self) -> int:
-        return self._n
-
-    @staticmethod
-    def key(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """A pose as the map stores it (a copy: take it before an update moves the state)."""
-        return np.concatenate((R.ravel(), p))
 
     def add(self, t_ns: int, key: np.ndarray, e: float) -> None:
         """The range error e [m] at the pose `key` (from `key()`), at time t_ns."""
@@ -74,28 +125,11 @@ class TofMap:
     def _flush(self) -> None:
         pend = self._pending
         self._pending = []
-        if self._n == len(self._t):  # full: keep the newest half (nothing grows)
-            k = self._keep
-            self._K[:k] = self._K[-k:]
-            self._e[:k] = self._e[-k:]
-            self._t[:k] = self._t[-k:]
-            self._c[:k] = self._c[-k:]
-            self._n = k
-        i = self._n
         k = pend[0][1].copy()
         for _, k1, _ in pend[1:]:
             k += k1
-        self._K[i] = k / len(pend)
-        self._e[i] = sum(e for _, _, e in pend) / len(pend)
-        self._t[i] = pend[-1][0]
-        self._c[i] = self._added
-        self._n += 1
+        self._append(pend[-1][0], k / len(pend), sum(e for _, _, e in pend) / len(pend))
         self._members.append(pend)
-
-    def entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(bin times (n,), pose keys (n, 12), range errors (n,)) held now, oldest first: copies."""
-        n = self._n
-        return self._t[:n].copy(), self._K[:n].copy(), self._e[:n].copy()
 
     def rewind(self, mark: int) -> None:
         """Back to where `mark()` said it stood: a rewind replays what came after, so a rewound
@@ -137,13 +171,44 @@ class TofMap:
     def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> tuple[float, float]:
         """(the range error expected at (R, p): the errors recorded near it, shrunk to `prior`;
         the kernel weight of those errors, in bins at the pose itself)."""
-        lo = int(np.searchsorted(self._t[: self._n], t_ns - self.window_ns))
-        if lo >= self._n:
+        sw = self._kernel_sum(t_ns, R, p)
+        if sw == 0.0:
             return prior, 0.0
-        K = self._K[lo : self._n]
-        dR = K[:, :9] - R.ravel()
-        dp = K[:, 9:] - p
-        d2 = self._wr * np.einsum("ij,ij->i", dR, dR) + self._wp * np.einsum("ij,ij->i", dp, dp)
-        w = np.exp(-0.5 * d2)
-        sw = float(w.sum())
-        return (float(w @ self._e[lo : self._n]) + self.prior_weight * prior) / (sw + self.prior_weight), sw
+        return (float(self._sum[0]) + self.prior_weight * prior) / (sw + self.prior_weight), sw
+
+
+class AccelMap(_PoseEntries):
+    """The accelerometer's residuals [m/s^2, IMU frame] at poses, taken in whole bins (the
+    filter sums each bin in its state), kept `window_ns`."""
+
+    def __init__(self, sigma_deg: float, sigma_mm: float, bin_ms: float, window_s: float, prior_weight: float):
+        super().__init__(sigma_deg, sigma_mm, bin_ms, window_s, prior_weight, 3)
+
+    def add_bin(self, t_ns: int, acc: np.ndarray) -> None:
+        """A bin summed as `kernels.gravity_step` sums it (acc (16,): the poses' R and p, the
+        residuals, the count), stamped t_ns (its last sample's time)."""
+        n = acc[15]
+        self._added += 1
+        self._append(int(t_ns), acc[:12] / n, acc[12:15] / n)
+
+    def mark(self) -> int:
+        """Where the map stands now, for `rewind` (the number of bins taken)."""
+        return self._added
+
+    def rewind(self, mark: int) -> None:
+        """Back to where `mark()` said it stood (the bins taken since are dropped)."""
+        if mark < self._added:
+            self._n = max(0, self._n - (self._added - mark))
+            self._added = mark
+
+    def forget_after(self, t_ns: int) -> None:
+        """Forget the bins that ended after t_ns (a reset: they came from a state going wrong)."""
+        self.rewind(self._added - (self._n - int(np.searchsorted(self._t[: self._n], t_ns, side="right"))))
+
+    def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The residual expected at (R, p): the mean of those recorded near it, shrunk towards
+        zero where few were (a new array)."""
+        sw = self._kernel_sum(t_ns, R, p)
+        if sw == 0.0:
+            return np.zeros(3)
+        return self._sum / (sw + self.prior_weight)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from services.fusion.tof_map import TofMap
+from services.fusion.tof_map import AccelMap, TofMap
 from tiplog.geometry import so3_exp
 
 P0 = np.array([0.7, 0.0, 0.18])
@@ -127,3 +127,39 @@ def test_a_full_map_keeps_what_its_window_needs():
         num, den = num + w * e, den + w
     assert len(keep) < len(m)  # older bins are kept but not used
     assert m.predict(t, q, P0, 0.0)[0] == pytest.approx(num / den, rel=1e-9)
+
+
+def _bin(R: np.ndarray, p: np.ndarray, e, n: int = 4) -> np.ndarray:
+    """A bin as `kernels.gravity_step` sums it: n samples at (R, p), each e off."""
+    acc = np.zeros(16)
+    acc[:9], acc[9:12], acc[12:15], acc[15] = n * R.ravel(), n * p, n * np.asarray(e), n
+    return acc
+
+
+def test_the_accelerometer_map_keeps_vectors_and_rewinds_whole_bins():
+    """Per-component means near a recorded pose, shrunk towards zero by the prior weight; zero
+    far from it; a rewind or a reset drops exactly the bins taken after it."""
+    m = AccelMap(sigma_deg=2.0, sigma_mm=8.0, bin_ms=50.0, window_s=120.0, prior_weight=2.0)
+    assert np.array_equal(m.predict(0, _roll(0.0), P0), np.zeros(3))
+    here, there = np.array([0.03, -0.01, 0.002]), np.array([-0.05, 0.0, 0.04])
+    t = 0
+    for _ in range(40):
+        t += 50_000_000
+        m.add_bin(t, _bin(_roll(0.0), P0, here))
+    mark, t_mark = m.mark(), t
+    for _ in range(20):
+        t += 50_000_000
+        m.add_bin(t, _bin(_roll(12.0), P0, there))
+    assert len(m) == 60 and m.entries()[2].shape == (60, 3)
+    np.testing.assert_allclose(m.predict(t, _roll(0.0), P0), 40 / 42 * here, atol=1e-6)
+    np.testing.assert_allclose(m.predict(t, _roll(12.0), P0), 20 / 22 * there, atol=1e-6)
+    np.testing.assert_allclose(m.predict(t, _roll(40.0), P0), np.zeros(3), atol=1e-12)
+    m.rewind(mark)
+    assert len(m) == 40 and m.mark() == mark
+    np.testing.assert_allclose(m.predict(t, _roll(12.0), P0), np.zeros(3), atol=1e-6)
+    for _ in range(5):
+        t += 50_000_000
+        m.add_bin(t, _bin(_roll(12.0), P0, there))
+    m.forget_after(t_mark + 1)
+    assert len(m) == 40 and m.mark() == mark
+    np.testing.assert_allclose(m.predict(t, _roll(0.0), P0), 40 / 42 * here, atol=1e-6)
