@@ -4,7 +4,7 @@ sample 30 ms behind, every late vision frame applied by rewinding), against the 
 50x real time (120 s in under 2.4 s). Reading and decoding the MCAP file is timed apart, and
 a profile says where the filter's time goes.
 
-    python -m benchmarks.fusion_offline [--session FILE] [--seconds 120] [--profile]
+    python -m benchmarks.fusion_offline [--session FILE] [--seconds 120] [--params FILE] [--profile]
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ def _session(path: str | None, seconds: float, tmp: Path) -> Path:
     return out
 
 
-def _filter(msgs: list, calib: Calibration) -> tuple[int, FusionRunner]:
-    runner = FusionRunner(calib, Params())
+def _filter(msgs: list, calib: Calibration, params: Params) -> tuple[int, FusionRunner]:
+    runner = FusionRunner(calib, params)
     n = 0
     for topic, msg, arr in msgs:
         runner.feed(topic, msg, arr)
@@ -55,9 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--session", help="a recording (default: generate a teleop block, seed 1000)")
     ap.add_argument("--seconds", type=float, default=120.0, help="block length to time [s]")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs; the best is reported")
+    ap.add_argument("--params", help="a fusion parameter file (default: the defaults)")
     ap.add_argument("--profile", action="store_true", help="print where the time goes")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
+    params = Params.load_yaml(args.params) if args.params else Params()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     with tempfile.TemporaryDirectory() as d:
@@ -70,11 +72,11 @@ def main(argv: list[str] | None = None) -> int:
     t_first = msgs[0][2]
     msgs = [m for m in msgs if m[2] - t_first <= args.seconds * 1e9]
     span_s = (msgs[-1][2] - msgs[0][2]) * 1e-9
-    _filter(msgs[: len(msgs) // 10], calib)  # warm-up: numba's compiled kernels load from cache
+    _filter(msgs[: len(msgs) // 10], calib, params)  # warm-up: numba's compiled kernels load from cache
     best = float("inf")
     for _ in range(args.repeat):
         t0 = time.process_time()
-        n, runner = _filter(msgs, calib)
+        n, runner = _filter(msgs, calib, params)
         best = min(best, time.process_time() - t0)
     diag = runner.diagnostics()
     res = {
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.profile:
         pr = cProfile.Profile()
         pr.enable()
-        _filter(msgs, calib)
+        _filter(msgs, calib, params)
         pr.disable()
         s = io.StringIO()
         pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(int(os.environ.get("PROFILE_ROWS", "14")))
