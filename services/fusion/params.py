@@ -127,7 +127,7 @@ class Params:
     # depends on the pose, the same on every pass) learnt as the ToF's is (tof_map.py): the
     # gravity update's residual, recorded while b_rho is free (vision tips) and |f| is within
     # accel_map_max_excess of g, in 50 ms bins over the last 120 s; the kernel-weighted mean at
-    # the present pose (2 deg, 8 mm: a third of the error's correlation lengths), looked up every
+    # the present pose (2 deg, 8 mm: narrower than the error's 6 deg, 10 mm), looked up every
     # accel_map_every_ms, is taken off every sample, with vision or not. On tuning seeds
     # 1000-1003 (geometric means, sweeps / teleop): full fusion 0.853 / 0.894 -> 0.782 / 0.858,
     # one frame in three 0.971 / 1.181 -> 0.899 / 1.136, 10 s blackouts 1.238 / 1.822 -> 1.182 /
