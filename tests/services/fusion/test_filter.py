@@ -771,4 +771,3 @@ def test_at_rest_the_vertical_gyro_bias_is_learnt_without_vision():
         else:
             assert "updates:rest" not in s.counts
     assert abs(heading[True]) < 4.0 and abs(heading[False]) > 15.0, heading
-
