@@ -92,9 +92,9 @@ def _bump(d: dict, key: str, by: float = 1.0) -> None:
 
 class TrackingFilter:
     """Maths over a `State`: every method takes the state and returns/mutates it, so the runner
-    can snapshot and rewind. The one thing kept here is the ToF pose map (`tof_map`), which only
-    grows in time; the runner cuts its tail when it rewinds. `sensors` switches streams off
-    (ablation)."""
+    can snapshot and rewind. The things kept here are the pose maps (`tof_map`, `accel_map`),
+    which only grow in time; the runner cuts their tails when it rewinds. `sensors` switches
+    streams off (ablation)."""
 
     def __init__(self, calib: Calibration, params: Params, sensors: frozenset[str] = SENSORS):
         self.c = calib
