@@ -63,6 +63,8 @@ class State:
         "gyro_n", "accel_n", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
         "t_init_ns", "tof_last", "rest", "tip_held", "f_corr", "f_corr_ns", "acc", "acc_bin", "acc_t",
     )  # fmt: skip
+    # arrays a copy shares with its original: the filter replaces them, never changes them in place
+    SHARED = ("w_imu", "f_imu", "f_corr")
 
     def copy(self) -> State:
         # written out, not looped over the slots: a snapshot is taken at every gyro sample
@@ -70,12 +72,11 @@ class State:
         s.t_ns, s.brho, s.gyro_n, s.t_init_ns = self.t_ns, self.brho, self.gyro_n, self.t_init_ns
         s.accel_n, s.last_tip_ns, s.last_vision_ns = self.accel_n, self.last_tip_ns, self.last_vision_ns
         s.vis_reject_run, s.reacq, s.tof_last = self.vis_reject_run, self.reacq, self.tof_last
-        s.tip_held = self.tip_held
-        s.f_corr, s.f_corr_ns = self.f_corr.copy(), self.f_corr_ns
+        s.tip_held, s.w_imu, s.f_imu = self.tip_held, self.w_imu, self.f_imu
+        s.f_corr, s.f_corr_ns = self.f_corr, self.f_corr_ns
         s.acc, s.acc_bin, s.acc_t = self.acc.copy(), self.acc_bin, self.acc_t
         s.p, s.v, s.R, s.P = self.p.copy(), self.v.copy(), self.R.copy(), self.P.copy()
-        s.bg, s.ba = self.bg.copy(), self.ba.copy()
-        s.w_imu, s.f_imu, s.alpha_tool = self.w_imu.copy(), self.f_imu.copy(), self.alpha_tool.copy()
+        s.bg, s.ba, s.alpha_tool = self.bg.copy(), self.ba.copy(), self.alpha_tool.copy()
         s.rest = self.rest.copy()
         s.w_prev = list(self.w_prev)
         s.counts = dict(self.counts)

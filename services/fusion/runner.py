@@ -106,6 +106,7 @@ class FusionRunner:
         self._done: list[tuple] = []
         self._track = _Track()
         self._track.map_mark = (0,) * len(self.filt.maps)
+        self._marks = tuple(m.mark for m in self.filt.maps)
         # snapshots after every gyro event, and one of the empty start (a frame captured before
         # the first gyro sample can still be applied at its time)
         self._snap_keys: list[tuple] = [(-(1 << 62), -1, 0)]
@@ -358,8 +359,8 @@ class FusionRunner:
         self._done_keys.append(key)
         self._done.append(ev)
         if kind == "gyro":
-            if f.maps:
-                tr.map_mark = tuple(m.mark() for m in f.maps)
+            if self._marks:
+                tr.map_mark = tuple([mark() for mark in self._marks])
             self._snap_keys.append(key)
             self._snaps.append(tr.copy())
 
