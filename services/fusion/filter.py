@@ -148,6 +148,9 @@ class TrackingFilter:
             p.rest_tau_ms * 1e-3, (p.rest_th_gyro_dps * DEG) ** 2, p.rest_th_accel_mps2**2, p.rest_min_ms * 1e-3,
             p.rest_chunk_ms * 1e-3, p.imu_gap_ms * 1e-3, (p.rest_agree_gyro_dps * DEG) ** 2, p.rest_agree_accel_mps2**2,
         ])  # fmt: skip
+        # what the compiled steps take: the detector's constants, or none (empty) when it is off
+        self._no_rest_k = np.zeros(0)
+        self._rest_k_on = self._rest_k if self.rest_on else self._no_rest_k
         # the chunk mean's variance: white rate noise over the chunk, plus the slack
         self._rest_var = np.full(3, self.q_gyro / (p.rest_chunk_ms * 1e-3) + (p.rest_sigma_dps * DEG) ** 2)
         self._rest_H = np.zeros((3, N))  # the chunk's mean rate measures b_g
@@ -295,10 +298,10 @@ class TrackingFilter:
                 dt_alpha = span * 1e-9 if span >= self._alpha_min_span_ns else 0.0
         s.gyro_n += 1
         do_rcm = s.gyro_n % self.prm.rcm_every == 0
-        status, nis, dbrho, health = kernels.gyro_step(
+        status, nis, dbrho, health, rest = kernels.gyro_step(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
             self._Q if free else self._Q_held, self._gyro_k, dt, self.imu, w, w_old, dt_alpha, self.rcm, do_rcm,
-            not free,
+            not free, s.rest, t_ns * 1e-9, self._rest_k_on,
         )  # fmt: skip
         s.w_imu = w
         if status == 0:
@@ -307,7 +310,7 @@ class TrackingFilter:
             s.brho += dbrho
         elif status == 1:
             s.counts["rejected:rcm:innovation"] = s.counts.get("rejected:rcm:innovation", 0) + 1
-        if self.rest_on and kernels.rest_sample(s.rest, w, t_ns * 1e-9, 0, self._rest_k):
+        if rest:
             self.update_rest(s)
         if not self.vision:
             self._clamp_depth(s)
@@ -325,13 +328,13 @@ class TrackingFilter:
                 s.f_corr_ns = int(t_ns)
                 s.f_corr = amap.predict(t_ns, s.R, s.p)
             s.f_imu = s.f_imu - s.f_corr
-        if self.rest_on:
-            kernels.rest_sample(s.rest, s.f_imu, t_ns * 1e-9, 1, self._rest_k)
         s.accel_n += 1
         every = self.prm.gravity_every
         if not every or s.accel_n % every:
+            if self.rest_on:
+                kernels.rest_sample(s.rest, s.f_imu, t_ns * 1e-9, 1, self._rest_k)
             return
-        self.update_gravity(s, self._advance(s, t_ns))
+        self.update_gravity(s, self._advance(s, t_ns), t_ns * 1e-9)
 
     # ------------------------------------------------------------------ updates
     def brho_free(self, s: State) -> bool:
@@ -395,12 +398,13 @@ class TrackingFilter:
         _bump(s.counts, "deferred:vision_tip")
         return False
 
-    def update_gravity(self, s: State, dt: float = 0.0) -> bool:
+    def update_gravity(self, s: State, dt: float = 0.0, rest_t_s: float | None = None) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and
         tangential terms (the shaft's point at the port taken at rest: `kernels.port_lever`),
         down-weighted as |f| leaves g, after
         propagating over dt [s] (the state's time already set): one compiled call
-        (`kernels.gravity_step`)."""
+        (`kernels.gravity_step`). With rest_t_s [s], the sample also goes through the rest
+        detector first (`on_accel`: one call for both)."""
         free = self.brho_free(s)
         amap = self.accel_map
         max_excess = -1.0  # recorded for the accelerometer's map: only while b_rho is free
@@ -416,7 +420,8 @@ class TrackingFilter:
         status, nis, dbrho, recorded = kernels.gravity_step(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
             self._Q if free else self._Q_held, self._gyro_k, dt, self._grav_k, not free, self.rcm,
-            s.acc, s.f_corr, max_excess,
+            s.acc, s.f_corr, max_excess, s.rest, -1.0 if rest_t_s is None else rest_t_s,
+            self._rest_k_on if rest_t_s is not None else self._no_rest_k,
         )  # fmt: skip
         if recorded:
             s.acc_t = s.t_ns

@@ -378,16 +378,17 @@ def gyro_step(
     p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
     q: np.ndarray, k: np.ndarray, dt: float, imu: bool, w_new: np.ndarray, w_old: np.ndarray, dt_alpha: float,
-    rcm: np.ndarray, do_rcm: bool, freeze_last: bool,
-) -> tuple[int, float, float, int]:  # fmt: skip
+    rcm: np.ndarray, do_rcm: bool, freeze_last: bool, rest: np.ndarray, t_s: float, rest_k: np.ndarray,
+) -> tuple[int, float, float, int, bool]:  # fmt: skip
     """Everything one gyro sample does, in one call (the filter's per-sample Python overhead was
     half its time): `propagate_held` over dt with the held samples (w_held, f_imu, alpha_tool);
     the angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
     unchanged when negative); then, if do_rcm, the RCM update with variance k[4] per axis and
-    chi-square gate k[5]; last, the state's `health` with k[6], k[7]. k = [bg_rw_static,
-    bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var, chi2, max_pos_var, max_speed2, brho_per_rad]. Returns
-    (status, NIS, b_rho increment, health), status -1 when no RCM update was made, else as
-    `update`."""
+    chi-square gate k[5]; then the state's `health` with k[6], k[7]; last, with the IMU, w_new
+    at t_s [s] through the rest detector (`rest_sample`, rest_k; an empty rest_k: none). k =
+    [bg_rw_static, bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var, chi2, max_pos_var, max_speed2,
+    brho_per_rad]. Returns (status, NIS, b_rho increment, health, whether the rest detector
+    released a chunk), status -1 when no RCM update was made, else as `update`."""
     if dt > 0.0:
         propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, imu)
     if imu and dt_alpha >= 0.0:
@@ -406,7 +407,9 @@ def gyro_step(
         status, nis, dx = update(P, H, y, r_var, k[5], freeze_last)
         if status == 0:
             dbrho = inject(p, v, R, bg, ba, dx, P)
-    return status, nis, dbrho, health(p, v, R, P, k[6], k[7])
+    hl = health(p, v, R, P, k[6], k[7])
+    released = imu and rest_k.shape[0] > 0 and rest_sample(rest, w_new, t_s, 0, rest_k)
+    return status, nis, dbrho, hl, released
 
 
 @njit(cache=True)
@@ -414,7 +417,7 @@ def gravity_step(
     p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray,
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
     q: np.ndarray, k: np.ndarray, dt: float, g: np.ndarray, freeze_last: bool, rcm: np.ndarray,
-    acc: np.ndarray, f_corr: np.ndarray, max_excess: float,
+    acc: np.ndarray, f_corr: np.ndarray, max_excess: float, rest: np.ndarray, t_s: float, rest_k: np.ndarray,
 ) -> tuple[int, float, float, bool]:  # fmt: skip
     """What an accelerometer sample due for a gravity update does, in one call (it comes at
     every sample): `propagate_held` over dt (k as in `gyro_step`; 0 when the caller propagated
@@ -426,7 +429,12 @@ def gravity_step(
     With max_excess >= 0 an applied update whose |f| is within max_excess of g is also
     recorded for the accelerometer's pose map: acc (16,) sums the pose before the update
     (R [0:9] row-major, p [9:12]) and the residual against the reading before the map's
-    correction f_corr was taken off it [12:15], and counts it [15]."""
+    correction f_corr was taken off it [12:15], and counts it [15].
+
+    First of all, f_imu at t_s [s] goes through the rest detector (`rest_sample`, rest_k; an
+    empty rest_k: none)."""
+    if rest_k.shape[0] > 0:
+        rest_sample(rest, f_imu, t_s, 1, rest_k)
     if dt > 0.0:
         propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, True)
     H, y = gravity_jacobian(R, R_ti, port_lever(R, p, rcm, r_lever_tool), w_held, bg, ba, alpha_tool, f_imu)
