@@ -30,6 +30,9 @@ TOPICS: dict[str, type[Message]] = {
     "vision/preview": CompressedImage_pb2.CompressedImage,
     "fusion/state": fusion_pb2.FusionState,
     "fusion/diagnostics": fusion_pb2.FusionDiagnostics,
+    # The state once every late measurement has been applied at its time (max_age_ms behind):
+    # what `tiplog fusion run` writes as fusion/state, for archives.
+    "fusion/state_settled": fusion_pb2.FusionState,
     # Forward prediction of the newest state to the present, for display (not for archives).
     "fusion/predicted": fusion_pb2.FusionState,
     # The estimated tool pose (base -> tool_estimate) for Foxglove's 3D panel beside bench/tf.

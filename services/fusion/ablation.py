@@ -205,11 +205,13 @@ def run_states(
     params: Params,
     sensors: str,
     probe: Callable[[FusionRunner], None] | None = None,
+    output: str = "settled",
 ) -> tuple[list[StateSample], FusionRunner]:
     """The tracking filter over `msgs` in arrival order, advanced at every gyro arrival: every
-    published state, and the runner (for its diagnostics). `probe`, if given, sees the runner
-    after every advance (a benchmark reading the filter's covariance at its head)."""
-    runner = FusionRunner(calib, params, parse_sensors(sensors))
+    published state (settled, as `tiplog fusion run` writes them, or output="display" for what
+    the live service published), and the runner (for its diagnostics). `probe`, if given, sees
+    the runner after every advance (a benchmark reading the filter's covariance at its head)."""
+    runner = FusionRunner(calib, params, parse_sensors(sensors), output)
     states: list[StateSample] = []
     for topic, msg, arr in msgs:
         runner.feed(topic, msg, arr)

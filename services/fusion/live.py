@@ -1,5 +1,7 @@
 """The live fusion loop: bus callbacks only stamp and enqueue; one worker thread feeds the
-`FusionRunner`, advances it to the present and publishes what it returns.
+`FusionRunner`, advances it to the present and publishes what it returns: fusion/state
+(`output_delay_ms` behind, for display) and fusion/state_settled (`max_age_ms` behind, every late
+frame applied at its time: what `tiplog fusion run` writes, for archives).
 
 Clocks. Every input's header stamp is on the gateway's host clock; the runner wants arrival
 times on that same clock. Live on one host the two agree; a replayed recording carries its
@@ -55,7 +57,7 @@ class LiveFusion:
         poll_s: float = 0.005,
         clock: Callable[[], int] = now_ns,
     ):
-        self.runner = FusionRunner(calibration, params, sensors)
+        self.runner = FusionRunner(calibration, params, sensors, output="both")
         self._clock = clock
         self._poll_s = poll_s
         self._queue: deque[tuple[str, Any, int]] = deque()
@@ -66,6 +68,7 @@ class LiveFusion:
         self.inputs = 0
         self.feed_errors = 0
         self.published = 0
+        self.settled = 0
         self._offset: int | None = None
         self._held: list[tuple[str, Any, int]] = []  # inputs before the first device sample
         self._vision_latency_ms = 0.0
@@ -75,6 +78,7 @@ class LiveFusion:
         self._pred_period_ns = int(1e9 / prediction_hz) if prediction_hz > 0 else 0
         self._tf_every = max(int(tf_every), 1)
         self._state_pub = bus.publisher("fusion/state")
+        self._settled_pub = bus.publisher("fusion/state_settled")
         self._pred_pub = bus.publisher("fusion/predicted", reliable=False)
         self._tf_pub = bus.publisher("fusion/tf")
         self._diag_pub = bus.publisher("fusion/diagnostics")
@@ -137,6 +141,8 @@ class LiveFusion:
                 samples = []
             for s in samples:
                 self._publish_state(s, t_now)
+            for s in self.runner.take_settled():
+                self._publish_settled(s, t_now)
         return now
 
     def _feed(self, topic: str, msg: Any, arrival: int) -> None:
@@ -180,6 +186,12 @@ class LiveFusion:
         if self.published % self._tf_every == 0:
             self._tf_pub.put(to_frame_transforms(s))
         self.published += 1
+
+    def _publish_settled(self, s: Any, t_now: int) -> None:
+        if not (np.all(np.isfinite(s.p_tip_base_m)) and np.all(np.isfinite(s.q_base_tool))):
+            return
+        self._settled_pub.put(to_fusion_state(s, lag_ms=(t_now - s.stamp_ns) * 1e-6, seq=self.settled))
+        self.settled += 1
 
     def _publish_prediction(self, now: int) -> None:
         if self._offset is None:

@@ -1,8 +1,12 @@
 """`tiplog fusion run IN.mcap --out OUT.mcap`: the tracking filter over a recording, offline and
-deterministic, exactly as the live service would have published it. OUT holds fusion/state
-(gyro rate), fusion/tf (the estimated tool pose for Foxglove, 20 Hz), fusion/diagnostics
-(1 Hz), and as metadata the calibration, parameters and sensors used. Only device/*,
-vision/observation and camera/info are read: never the bench's truth."""
+deterministic. OUT holds fusion/state (gyro rate), fusion/tf (the estimated tool pose for
+Foxglove, 20 Hz), fusion/diagnostics, and as metadata the calibration, parameters, sensors and
+output used. Only device/*, vision/observation and camera/info are read: never the bench's
+truth.
+
+fusion/state is the settled causal filter (every measurement applied at its time: what the live
+service publishes on fusion/state_settled); `--as-live` writes instead what the live service
+published on fusion/state, `output_delay_ms` behind, late frames only from their arrival on."""
 
 from __future__ import annotations
 
@@ -38,6 +42,11 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", help="YAML file of filter parameters (default: the built-in set)")
     p.add_argument("--calibration", help="calibration YAML (default: the recording's own calibration metadata)")
     p.add_argument("--smooth", action="store_true", help="also write fusion/state_smoothed (RTS smoother)")
+    p.add_argument(
+        "--as-live",
+        action="store_true",
+        help="fusion/state as the live service published it (output_delay_ms behind) instead of settled",
+    )
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.set_defaults(func=run)
@@ -167,8 +176,8 @@ def run_filter(src: Path, runner: FusionRunner, progress: bool = False) -> tuple
 def write_output(tmp: Path, samples: list, runner: FusionRunner, meta: dict[str, Any], smoothed=None) -> None:
     from services.fusion.publish import to_diagnostics, to_frame_transforms
 
-    lag = runner.params.output_delay_ms
-    delay = runner.params.output_delay_ns
+    delay = runner.delay_ns
+    lag = delay * 1e-6
     with McapWriter(tmp) as w:
         for k, v in meta.items():
             w.add_metadata(k, v)
@@ -187,7 +196,7 @@ def write_output(tmp: Path, samples: list, runner: FusionRunner, meta: dict[str,
 
 def run(args: argparse.Namespace) -> int:
     src, calib, params, sensors = load_inputs(args)
-    runner = FusionRunner(calib, params, sensors)
+    runner = FusionRunner(calib, params, sensors, "display" if args.as_live else "settled")
     samples, stats = run_filter(src, runner, progress=not args.quiet)
     if not samples:
         raise UserError(f"{src}: the filter never initialised (no usable vision frame or IMU data)")
@@ -203,6 +212,7 @@ def run(args: argparse.Namespace) -> int:
             "source": src.name,
             "sensors": ",".join(sorted(sensors)),
             "mode": mode_name(sensors),
+            "output": runner.output,
             "states": str(len(samples)),
         },
         "fusion_params": {"json": json.dumps(params.to_dict())},

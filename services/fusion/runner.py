@@ -10,6 +10,15 @@ every gyro sample) when one is older than what it already processed (late vision
 output depends only on the inputs, never on how `advance` calls interleave with `feed`:
 offline (`feed` everything, then `finish`) equals live. A measurement that arrives more than
 `max_age_ms` after its time, or older than the kept history, is counted and dropped.
+
+Two outputs. The display stream (`output="display"`, the live `fusion/state`) is the one above,
+`output_delay_ms` behind. The settled stream holds the state at t_k once every measurement that
+can still be applied at its time has arrived, `max_age_ms` after it: the causal filter with
+every late frame applied at its time, which the display stream converges to. `output="settled"`
+publishes only that (offline: no frame is ever late, so nothing is rewound); `output="both"`
+(the live service) returns the display stream from `advance` and the settled one from
+`take_settled`. The settled states of "both" equal those of "settled" to within the rounding of
+the ToF map's rewinds (well under a nanometre).
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ from tiplog.calibration import Calibration
 
 ALL = SENSORS
 KIND_ORDER = {"gyro": 0, "accel": 1, "tof": 2, "vision": 3}
+OUTPUTS = ("display", "settled", "both")
 TOF_VALID = 1
 __all__ = ["ALL", "FusionRunner", "StateSample"]
 
@@ -87,20 +97,33 @@ class _Track:
 
 
 class FusionRunner:
-    def __init__(self, calibration: Calibration, params: Params | None = None, sensors: frozenset[str] = ALL):
+    def __init__(
+        self,
+        calibration: Calibration,
+        params: Params | None = None,
+        sensors: frozenset[str] = ALL,
+        output: str = "display",
+    ):
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {', '.join(OUTPUTS)} (got {output!r})")
         self.calib = calibration
         self.params = params or Params()
         self.sensors = frozenset(sensors)
+        self.output = output
         self.filt = TrackingFilter(calibration, self.params, self.sensors)
         p = self.params
-        self.delay_ns = p.output_delay_ns
         self.history_ns = int(p.history_ms * 1e6)
         self.max_age_ns = int(p.max_age_ms * 1e6)
+        # what advance() returns, this far behind: settled, nothing arrives late
+        self.delay_ns = self.max_age_ns if output == "settled" else p.output_delay_ns
         self.lock_ns = int(p.vision_lock_ms * 1e6)
         self.restart_ns = int(p.restart_without_vision_ms * 1e6) if p.restart_without_vision_ms > 0 else None
         self.lat = {k: calibration.latency_ns(k) for k in ("gyro", "accel", "tof", "camera")}
         self._pending: deque[tuple[int, tuple]] = deque()  # (arrival, event) in feed order
         self._gyro_due: deque[tuple[int, int, tuple]] = deque()  # (cutoff, t, key) to publish
+        self._settle_due: deque[tuple[int, int, tuple]] = deque()  # the same, settled ("both")
+        self._settled: list[StateSample] = []
+        self._last_settled_t = -(1 << 62)
         self._ready: list[tuple] = []  # heap of arrived events not yet processed (ahead of head)
         self._done_keys: list[tuple] = []  # processed events in key order
         self._done: list[tuple] = []
@@ -136,6 +159,8 @@ class FusionRunner:
         self._pending.append((arrival_ns, ev))
         if ev[0][1] == 0:
             self._gyro_due.append((max(t + self.delay_ns, arrival_ns), t, ev[0]))
+            if self.output == "both":
+                self._settle_due.append((max(t + self.max_age_ns, arrival_ns), t, ev[0]))
 
     def _drop(self, kind_order: int, reason: str) -> None:
         name = next(k for k, v in KIND_ORDER.items() if v == kind_order)
@@ -186,15 +211,19 @@ class FusionRunner:
         """States at gyro times up to now_ns - output_delay, each exactly once (assumes every
         message that arrived by now_ns has been fed)."""
         out: list[StateSample] = []
-        while self._gyro_due and self._gyro_due[0][0] <= now_ns:
-            self._publish_next(out)
+        self._run_due(now_ns, out)
         return out
 
     def finish(self) -> list[StateSample]:
         """Offline: every state not yet published, once all inputs have arrived."""
         out: list[StateSample] = []
-        while self._gyro_due:
-            self._publish_next(out)
+        self._run_due(None, out)
+        return out
+
+    def take_settled(self) -> list[StateSample]:
+        """With output="both": the settled states that came due in `advance` or `finish` since
+        the last call, in time order."""
+        out, self._settled = self._settled, []
         return out
 
     @property
@@ -245,7 +274,7 @@ class FusionRunner:
             "nis": nis,
             "rewinds": int(self.stats["rewinds"]),
             "max_rewind_ms": float(self.stats["max_rewind_ms"]),
-            "lag_ms": self.params.output_delay_ms,
+            "lag_ms": self.delay_ns * 1e-6,
             "mode": mode_name(self.sensors),
             "resets": self._track.resets,
             "reset_reasons": dict(self._track.reset_reasons),
@@ -259,14 +288,49 @@ class FusionRunner:
         n = self._track.neutral_u
         return n if n is not None else np.array([0.0, 0.0, -1.0])
 
-    def _publish_next(self, out: list[StateSample]) -> None:
-        cutoff, t_k, key_k = self._gyro_due.popleft()
+    def _run_due(self, now_ns: int | None, out: list[StateSample]) -> None:
+        """Both streams' states due by now_ns (None: all), in cutoff order (the display's first
+        on a tie): each stream then sees exactly the inputs that had arrived by its cutoff."""
+        gyro, settle = self._gyro_due, self._settle_due
+        end = math.inf if now_ns is None else now_ns
+        while gyro or settle:
+            d = gyro[0][0] if gyro else math.inf
+            e = settle[0][0] if settle else math.inf
+            if min(d, e) > end:
+                return
+            if d <= e:
+                self._publish_next(out)
+            else:
+                self._settle_next()
+
+    def _take_arrived(self, cutoff: int) -> None:
+        """Every input that arrived by `cutoff` into the filter's queue (a late one at its time)."""
         while self._pending and self._pending[0][0] <= cutoff:
             _, ev = self._pending.popleft()
             if self._done_keys and ev[0] < self._done_keys[-1]:
                 self._rewind_insert(ev)
             else:
                 heapq.heappush(self._ready, ev)
+
+    def _settle_next(self) -> None:
+        # Gyro k was processed by the display stream (its cutoff is not later); late inputs
+        # that arrived since are applied at their times before its snapshot is read.
+        cutoff, t_k, key_k = self._settle_due.popleft()
+        self._take_arrived(cutoff)
+        if t_k <= self._last_settled_t:
+            return
+        i = bisect.bisect_left(self._snap_keys, key_k)
+        if i == len(self._snap_keys) or self._snap_keys[i] != key_k:
+            return  # gyro dropped (too old)
+        self._last_settled_t = t_k
+        tr = self._snaps[i]
+        if tr.state is not None and tr.state.finite():
+            neutral = tr.neutral_u if tr.neutral_u is not None else np.array([0.0, 0.0, -1.0])
+            self._settled.append(make_sample(tr.state, self.calib.rcm_base_m, neutral, self.lock_ns))
+
+    def _publish_next(self, out: list[StateSample]) -> None:
+        cutoff, t_k, key_k = self._gyro_due.popleft()
+        self._take_arrived(cutoff)
         while self._ready and self._ready[0][0] <= key_k:
             self._process(heapq.heappop(self._ready))
         if t_k <= self._last_pub_t:

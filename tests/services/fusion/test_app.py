@@ -1,6 +1,6 @@
 """The live fusion service as a real process on a real Zenoh bus, fed by replaying a bench
 session: its fusion/state equals the FusionRunner run offline on the inputs it consumed,
-bit for bit; malformed inputs are counted and the service stays up; without a calibration it
+bit for bit, and so does its fusion/state_settled the settled offline run; malformed inputs are counted and the service stays up; without a calibration it
 refuses to start (exit 2, one line)."""
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ class _Service:
         self.bus = Bus(listen_cfg)
         self.bus.watch_alive(lambda name, alive: alive and name == "fusion" and self.up.set())
         self.states = self.bus.subscribe("fusion/state")
+        self.settled = self.bus.subscribe("fusion/state_settled")
         self.diags = self.bus.subscribe("fusion/diagnostics")
         self.tfs = self.bus.subscribe("fusion/tf")
         self.proc = _start(listen_cfg.listen[0], listen_cfg.prefix, *sets)
@@ -101,6 +102,13 @@ def test_live_equals_offline_on_the_inputs_it_consumed(session, bus_pair_configs
             live.append(got[0])
             if got[0].header.stamp_ns == last:
                 break
+        settled = []
+        while True:  # the same, max_age_ms (1 s) later
+            got = svc.settled.recv(timeout=20)
+            assert got is not None, f"no settled state after {len(settled)}; last expected at {last}"
+            settled.append(got[0])
+            if got[0].header.stamp_ns == last:
+                break
         for _ in range(100):  # the first diagnostics may predate the replay
             diag = svc.diags.recv(timeout=5)[0]
             if diag.initialised and diag.inputs > 0:
@@ -126,6 +134,18 @@ def test_live_equals_offline_on_the_inputs_it_consumed(session, bus_pair_configs
     assert [_strip(m) for m in live] == [_strip(to_fusion_state(s)) for s in offline]
     lag = np.array([m.lag_ms for m in live])
     assert np.all(lag >= 29.0) and np.median(lag) < 200.0  # held the output delay behind
+    # the settled stream is what `tiplog fusion run` writes from those inputs
+    runner = FusionRunner(calib, output="settled")
+    for topic, msg, arrival in fed:
+        runner.feed(topic, msg, arrival)
+    offline = runner.finish()
+    assert len(settled) == len(offline) >= len(live)
+    assert [_strip(m) for m in settled] == [_strip(to_fusion_state(s)) for s in offline]
+    shown = {m.header.stamp_ns: m.tip_m.x for m in live}
+    moved = [abs(m.tip_m.x - shown[m.header.stamp_ns]) for m in settled if m.header.stamp_ns in shown]
+    assert len(moved) == len(live) and max(moved) > 1e-6  # late frames applied at their time
+    lag = np.array([m.lag_ms for m in settled])
+    assert np.all(lag >= 999.0)
     assert diag.mode == "full" and diag.inputs > 0 and diag.initialised
     (t,) = tf.transforms
     assert (t.parent_frame_id, t.child_frame_id) == ("base", "tool_estimate")

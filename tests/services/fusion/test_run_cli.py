@@ -106,6 +106,22 @@ def test_estimate_identical_without_truth(tmp_path, session, estimate):
     assert "rcm_base_m" in json.loads(md["fusion_calibration"]["json"])
 
 
+def test_the_settled_trajectory_by_default_and_the_live_one_on_request(tmp_path, session, estimate):
+    """fusion/state is the settled causal filter (`max_age_ms` behind, scoring better); with
+    --as-live it is what the live service published (30 ms behind); the metadata say which."""
+    live = tmp_path / "live.mcap"
+    assert tiplog_main(["fusion", "run", str(session), "--out", str(live), "--as-live", "--quiet"]) == 0
+    got = {}
+    for name, path in (("settled", estimate), ("display", live)):
+        lags = {round(r.message.lag_ms, 6) for r in read_messages(path, ["fusion/state"])}
+        assert read_metadata(path)["fusion"]["output"] == name
+        res = tmp_path / f"{name}.json"
+        assert tiplog_main(["evaluate", str(session), "--estimate", str(path), "--json", str(res)]) == 0
+        got[name] = (lags, json.loads(res.read_text())["pooled"]["tip_rmse_mm"])
+    assert got["settled"][0] == {1000.0} and got["display"][0] == {30.0}
+    assert got["settled"][1] < got["display"][1]
+
+
 def test_evaluate_keys_and_figures_follow_the_error(tmp_path, session, estimate):
     res, plots = tmp_path / "r.json", tmp_path / "plots"
     args = ["evaluate", str(session), "--estimate", str(estimate), "--json", str(res), "--plots", str(plots)]

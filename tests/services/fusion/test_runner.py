@@ -46,8 +46,8 @@ def _gyro_fault(msgs, seconds: float, radps: float):
     return spoilt, t_mid
 
 
-def _run(msgs, calib, params=None, schedule="offline", rng=None):
-    r = FusionRunner(calib, params or Params())
+def _run(msgs, calib, params=None, schedule="offline", rng=None, output="display"):
+    r = FusionRunner(calib, params or Params(), output=output)
     out = []
     for topic, msg, arr in msgs:
         r.feed(topic, msg, arr)
@@ -97,6 +97,41 @@ def test_rewind_equals_in_order_application(session):
     assert r_late.diagnostics()["updates"] == r_prompt.diagnostics()["updates"]
     # published (provisional) states lacked the frames still in flight: not the same
     assert not np.array_equal(_arrays(late)[1], p0[-len(late) :])
+
+
+def test_settled_output_is_the_revised_trajectory_without_rewinds(session):
+    """output="settled" (what `tiplog fusion run` writes) is every state once each late frame
+    has been applied at its time; "both" (the live service) gives the display stream unchanged
+    and the same settled states beside it; the settled ones are nearer the robot."""
+    msgs, calib, (tt, tip) = session
+    display, r_display = _run(msgs, calib)
+    settled, r_settled = _run(msgs, calib, output="settled")
+    r_both = FusionRunner(calib, output="both")
+    shown, kept = [], []
+    for topic, msg, arr in msgs:
+        r_both.feed(topic, msg, arr)
+        if topic == "device/gyro":
+            shown += r_both.advance(arr)
+            kept += r_both.take_settled()
+    shown += r_both.finish()
+    kept += r_both.take_settled()
+    assert r_settled.diagnostics()["rewinds"] == 0 and r_both.diagnostics()["rewinds"] > 10
+    for a, b in ((shown, display), (kept, settled)):
+        (ta, pa), (tb, pb) = _arrays(a), _arrays(b)
+        np.testing.assert_array_equal(ta, tb)
+        np.testing.assert_allclose(pa, pb, rtol=0, atol=1e-12)
+    assert r_settled.diagnostics()["lag_ms"] == 1000.0 and r_display.diagnostics()["lag_ms"] == 30.0
+    (t_d, p_d), (t_s, p_s) = _arrays(display), _arrays(settled)
+    late = t_s > t_s[0] + 3e9
+    common = np.isin(t_s, t_d) & late
+    assert common.sum() > 1000
+    on_display = np.isin(t_d, t_s[common])
+    truth = _truth_at(t_s[common], tt, tip)
+    err_s = np.sqrt(np.mean(np.sum((p_s[common] - truth) ** 2, 1)))
+    err_d = np.sqrt(np.mean(np.sum((p_d[on_display] - truth) ** 2, 1)))
+    assert err_s < err_d, (err_s, err_d)
+    with pytest.raises(ValueError, match="output must be one of"):
+        FusionRunner(calib, output="live")
 
 
 def test_too_old_frame_counted_and_dropped(session):
