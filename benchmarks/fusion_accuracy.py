@@ -10,9 +10,11 @@ filter never sees the truth; scoring uses `services.fusion.evaluation` (first 20
 block excluded). `tiplog evaluate SESSION --ablations` runs the same variants in parallel.
 `smoothed` is the full fusion through the RTS smoother, as an archive gets it; `smoothed:NAME`
 smooths any subset or degradation (`smoothed:blackout10`: what 10 s blackouts cost an archive).
+The filter's states are the settled ones (what `tiplog fusion run` writes); `--as-live` scores
+the display stream the live service published on fusion/state instead.
 
     python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...]
-        [--calibration FILE] [--shared-blackouts] [--json OUT]
+        [--calibration FILE] [--shared-blackouts] [--as-live] [--json OUT]
 """
 
 from __future__ import annotations
@@ -74,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="the paper's sixteen blackouts shared over the sessions given (default: sixteen in each)",
     )
+    ap.add_argument("--as-live", action="store_true", help="score the display stream (30 ms behind), not the settled")
     ap.add_argument("--json", help="write all results here")
     args = ap.parse_args(argv)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -110,11 +113,12 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
                 est = Estimate(np.array([s.stamp_ns for s in sm], np.int64), np.array([s.p_tip_base_m for s in sm]))
                 diag = {"resets": 0}
             else:
-                est, diag, cpu = run_variant(use, calib, params, sensors)
+                est, diag, cpu = run_variant(use, calib, params, sensors, "display" if args.as_live else "settled")
             r = score_continuous(truth, est)
             row = {
                 "session": Path(path).name,
                 "variant": v,
+                "output": "display" if args.as_live and not smoothed else ("smoothed" if smoothed else "settled"),
                 "pooled": r["pooled"],
                 "blocks": r["blocks"],
                 "block_mean_mm": float(np.mean([b["tip_rmse_mm"] for b in r["blocks"]])),

@@ -188,11 +188,12 @@ def variant_inputs(
 
 
 def run_variant(
-    msgs: Iterable[tuple], calib: Calibration, params: Params, sensors: str
+    msgs: Iterable[tuple], calib: Calibration, params: Params, sensors: str, output: str = "settled"
 ) -> tuple[Estimate, dict, float]:
-    """The tracking filter over `msgs` in arrival order: (estimate, diagnostics, CPU seconds)."""
+    """The tracking filter over `msgs` in arrival order: (estimate, diagnostics, CPU seconds);
+    `output` as `FusionRunner`'s."""
     t0 = time.process_time()
-    states, runner = run_states(msgs, calib, params, sensors)
+    states, runner = run_states(msgs, calib, params, sensors, output=output)
     cpu = time.process_time() - t0
     tip = np.array([s.p_tip_base_m for s in states], float).reshape(-1, 3)
     est = Estimate(np.array([s.stamp_ns for s in states], np.int64), tip)

@@ -1,6 +1,7 @@
 """The accuracy benchmark's degraded-vision spans: sixteen blackouts per session, inside the
 scored blocks, never overlapping (placed per block they merged into block-long blackouts), or
-the paper's sixteen shared over the sessions given."""
+the paper's sixteen shared over the sessions given; the settled states are scored, or with
+--as-live the display stream."""
 
 from __future__ import annotations
 
@@ -71,3 +72,22 @@ def test_a_wrong_file_gets_one_line_and_exit_2(tmp_path, capsys):
     assert main([str(not_mcap)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "notes.mcap" in err[0]
+
+
+def test_the_settled_states_are_scored_unless_asked_for_the_live_display(tmp_path_factory, tmp_path):
+    import json
+
+    from benchmarks.fusion_accuracy import main
+    from tests.services.fusion.sessions import bench_session
+
+    session = bench_session(tmp_path_factory, "teleop", 11, 9.0)
+    out = tmp_path / "r.json"
+    rows = {}
+    for flag in ([], ["--as-live"]):
+        assert main([str(session), "--variants", "full,smoothed", *flag, "--json", str(out)]) == 0
+        rows[bool(flag)] = {r["variant"]: r for r in json.loads(out.read_text())}
+    assert [r["output"] for r in rows[False].values()] == ["settled", "smoothed"]
+    assert [r["output"] for r in rows[True].values()] == ["display", "smoothed"]
+    settled, display = rows[False]["full"]["pooled"], rows[True]["full"]["pooled"]
+    assert settled["tip_rmse_mm"] != display["tip_rmse_mm"]
+    assert rows[True]["smoothed"]["pooled"] == rows[False]["smoothed"]["pooled"]  # the smoother has no display
