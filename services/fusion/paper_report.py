@@ -212,7 +212,8 @@ def dynamic_md(res: dict[str, Any]) -> list[str]:
                 f"{b['radial_rmse_mm']:.2f} | {b['tangential_rmse_mm']:.2f} | {_f(rb['tip_rmse_mm'] if rb else None)} | {ps} |"
             )
     lines.append(
-        "\nTip error in mm, base frame, no alignment, first 20 % of each block excluded, with "
+        "\nTip error in mm of the settled causal filter (every late frame applied at its time, as the "
+        "paper's offline causal filter; not smoothed), base frame, no alignment, first 20 % of each block excluded, with "
         "`tiplog calibrate block --latency`'s file (the fit-only block's calibration, as the paper's); "
         "the sessions' as-calibrated constants (marker hand-eye, no refit) in their own column."
     )
