@@ -1,8 +1,9 @@
 """`python -m services.fusion`: the tracking filter live on the bus.
 
 Subscribes device/gyro, device/accel, device/tof, vision/observation and camera/info;
-publishes fusion/state (every gyro sample, a fixed delay behind real time), fusion/predicted
-(the newest state carried forward to the present, for display), fusion/tf (the estimated
+publishes fusion/state (every gyro sample, a fixed delay behind real time), fusion/state_settled
+(the same states once every late measurement is applied at its time, 1 s behind, for
+archives), fusion/predicted (the newest state carried forward to the present, for display), fusion/tf (the estimated
 tool pose as Foxglove FrameTransforms) and fusion/diagnostics (1-10 Hz). The calibration
 comes from a calibration file (`calibration_file`, the `tiplog calibrate` format; `tiplog up`
 passes the bench's as-calibrated file); without one the service says so and exits 2.
@@ -96,13 +97,14 @@ def body(ctx: ServiceContext[FusionConfig]) -> None:
         input_log_file=cfg.input_log_file,
     )
     ctx.log.info(
-        "calibration %s, mode %s, output %.0f ms behind real time",
+        "calibration %s, mode %s, output %.0f ms behind real time, settled %.0f ms behind",
         cfg.calibration_file,
         mode_name(sensors),
         params.output_delay_ms,
+        params.max_age_ms,
     )
     live.start(ctx.stop)
-    ctx.log.info("published %d states from %d inputs", live.published, live.inputs)
+    ctx.log.info("published %d states (%d settled) from %d inputs", live.published, live.settled, live.inputs)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
