@@ -114,8 +114,10 @@ class FusionRunner:
         p = self.params
         self.history_ns = int(p.history_ms * 1e6)
         self.max_age_ns = int(p.max_age_ms * 1e6)
-        # what advance() returns, this far behind: settled, nothing arrives late
+        # what advance() returns, this far behind: settled, nothing arrives late, so no history
+        # is kept for rewinds
         self.delay_ns = self.max_age_ns if output == "settled" else p.output_delay_ns
+        self._keep_history = output != "settled"
         self.lock_ns = int(p.vision_lock_ms * 1e6)
         self.restart_ns = int(p.restart_without_vision_ms * 1e6) if p.restart_without_vision_ms > 0 else None
         self.lat = {k: calibration.latency_ns(k) for k in ("gyro", "accel", "tof", "camera")}
@@ -127,6 +129,8 @@ class FusionRunner:
         self._ready: list[tuple] = []  # heap of arrived events not yet processed (ahead of head)
         self._done_keys: list[tuple] = []  # processed events in key order
         self._done: list[tuple] = []
+        self._last_done: tuple | None = None  # the newest event processed
+        self._last_gyro: tuple | None = None  # ... and gyro event
         self._track = _Track()
         self._track.map_mark = (0,) * len(self.filt.maps)
         self._marks = tuple(m.mark for m in self.filt.maps)
@@ -235,7 +239,7 @@ class FusionRunner:
     def history(self) -> list[StateSample]:
         """The kept history (the last history_ms) as the filter now has it, every late
         measurement applied at its time: what the published states converge to once all
-        inputs have arrived."""
+        inputs have arrived (none with output="settled", which needs no history)."""
         out = []
         for tr in self._snaps:
             if tr.state is not None and tr.state.finite():
@@ -307,7 +311,7 @@ class FusionRunner:
         """Every input that arrived by `cutoff` into the filter's queue (a late one at its time)."""
         while self._pending and self._pending[0][0] <= cutoff:
             _, ev = self._pending.popleft()
-            if self._done_keys and ev[0] < self._done_keys[-1]:
+            if self._last_done is not None and ev[0] < self._last_done:
                 self._rewind_insert(ev)
             else:
                 heapq.heappush(self._ready, ev)
@@ -336,14 +340,14 @@ class FusionRunner:
         if t_k <= self._last_pub_t:
             self.stats["late_gyro"] += 1
             return
-        i = bisect.bisect_left(self._snap_keys, key_k)
-        if i == len(self._snap_keys) or self._snap_keys[i] != key_k:
+        if self._last_gyro != key_k:
             return  # gyro dropped (too old)
         self._last_pub_t = t_k
-        st = self._snaps[i].state
+        st = self._track.state  # the filter stands at gyro k (its snapshot, if kept, is a copy)
         if st is not None and st.finite():
             out.append(make_sample(st, self.calib.rcm_base_m, self._neutral(), self.lock_ns))
-        self._prune(t_k - self.history_ns)
+        if self._keep_history:
+            self._prune(t_k - self.history_ns)
 
     def _prune(self, t_min: int) -> None:
         if self._snap_keys[0][0] >= t_min - self.history_ns // 4:
@@ -360,11 +364,11 @@ class FusionRunner:
     def _rewind_insert(self, ev: tuple) -> None:
         key = ev[0]
         i = bisect.bisect_right(self._snap_keys, key) - 1
-        if i < 0:
+        if i < 0 or not self._keep_history:  # settled: an input this late is too old (not reached)
             self._drop(key[1], "older_than_history")
             return
         self.stats["rewinds"] += 1
-        self.stats["max_rewind_ms"] = max(self.stats["max_rewind_ms"], (self._done_keys[-1][0] - key[0]) * 1e-6)
+        self.stats["max_rewind_ms"] = max(self.stats["max_rewind_ms"], (self._last_done[0] - key[0]) * 1e-6)
         snap_key = self._snap_keys[i]
         self._track = self._snaps[i].copy()
         for m, mark in zip(self.filt.maps, self._track.map_mark, strict=True):
@@ -420,6 +424,11 @@ class FusionRunner:
                     tr.reset_ns = None
                     if tr.neutral_u is None:
                         tr.neutral_u = tr.state.R[:, 2].copy()
+        self._last_done = key
+        if kind == "gyro":
+            self._last_gyro = key
+        if not self._keep_history:
+            return
         self._done_keys.append(key)
         self._done.append(ev)
         if kind == "gyro":

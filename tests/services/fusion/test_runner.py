@@ -116,6 +116,7 @@ def test_settled_output_is_the_revised_trajectory_without_rewinds(session):
     shown += r_both.finish()
     kept += r_both.take_settled()
     assert r_settled.diagnostics()["rewinds"] == 0 and r_both.diagnostics()["rewinds"] > 10
+    assert r_settled.history() == [] and len(r_both.history()) > 100  # settled keeps no snapshots
     for a, b in ((shown, display), (kept, settled)):
         (ta, pa), (tb, pb) = _arrays(a), _arrays(b)
         np.testing.assert_array_equal(ta, tb)
