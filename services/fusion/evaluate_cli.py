@@ -47,7 +47,11 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("session", nargs="?", help="bench session (MCAP) with ground truth (bench/robot, trials)")
     p.add_argument("--estimate", help="MCAP written by `tiplog fusion run` (continuous sessions)")
     p.add_argument("--json", dest="json_out", help="result file to write (JSON)")
-    p.add_argument("--topic", default="fusion/state", help="estimate topic (fusion/state_smoothed for --smooth runs)")
+    p.add_argument(
+        "--topic",
+        help="estimate topic (default: fusion/state_settled if the file has it, a live recording, else fusion/state; "
+        "fusion/state_smoothed for --smooth runs)",
+    )
     p.add_argument("--calibration", help="calibration YAML for the filters run here (default: the session's own)")
     p.add_argument("--plots", help="folder for PNG plots")
     p.add_argument("--ablations", action="store_true", help="continuous session: every sensor subset and degradation")
@@ -198,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
 def _print_continuous(result: dict[str, Any]) -> None:
     p = result["pooled"]
     print(
-        f"pooled: tip RMSE {p['tip_rmse_mm']:.2f} mm, median {p['tip_median_mm']:.2f}, p95 {p['tip_p95_mm']:.2f}, "
+        f"{result['estimate_topic']} pooled: tip RMSE {p['tip_rmse_mm']:.2f} mm, median {p['tip_median_mm']:.2f}, p95 {p['tip_p95_mm']:.2f}, "
         f"radial {p['radial_rmse_mm']:.2f}, tangential {p['tangential_rmse_mm']:.2f} ({p['samples']} samples)"
     )
     for b in result["blocks"]:

@@ -9,6 +9,10 @@ with its `coverage`: the share of the window the estimate covers (below 1 where 
 published nothing for a while, which the error figures cannot show).
 Other protocols (translation, rotation, static holds) register their own scorer in
 `SCORERS` under their protocol name and reuse `load_truth` / `load_estimate`.
+
+The estimate is `fusion/state` of a `tiplog fusion run` file, or of a live recording the
+`fusion/state_settled` it holds (the same stream an offline run writes; its `fusion/state` is
+the display stream, 30 ms behind): `estimate_topic` picks it.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from tiplog.mcap_io import read_messages, read_metadata
+from tiplog.mcap_io import read_messages, read_metadata, read_summary
 
 CONTINUOUS_KINDS = ("sweep", "teleop", "demo")
 CONTINUOUS_PROTOCOLS = ("sweeps", "teleop", "demo")
@@ -68,6 +72,17 @@ def load_truth(session: str | Path) -> Truth:
     if len(t) < 2:
         raise EvaluationError(f"{session}: no ground truth (topic bench/robot)")
     return Truth(np.asarray(t, np.int64), np.asarray(tip), np.asarray(rcm), trials, protocol)
+
+
+SETTLED_TOPIC = "fusion/state_settled"
+
+
+def estimate_topic(path: str | Path) -> str:
+    """The topic to score in an estimate file: fusion/state_settled where it has one (a live
+    recording), else fusion/state (a `tiplog fusion run` file)."""
+    summary = read_summary(path)
+    have = {c.topic for c in summary.channels.values()} if summary is not None else set()
+    return SETTLED_TOPIC if SETTLED_TOPIC in have else "fusion/state"
 
 
 def load_estimate(path: str | Path, topic: str = "fusion/state") -> Estimate:
@@ -181,11 +196,13 @@ SCORERS: dict[str, Callable[[Truth, Estimate], dict[str, Any]]] = {
 }
 
 
-def evaluate(session: str | Path, estimate: str | Path, topic: str = "fusion/state") -> dict[str, Any]:
+def evaluate(session: str | Path, estimate: str | Path, topic: str | None = None) -> dict[str, Any]:
+    """Score `estimate` (its `topic`; by default `estimate_topic`'s choice, named in the result)."""
     truth = load_truth(session)
+    topic = topic or estimate_topic(estimate)
     est = load_estimate(estimate, topic)
     scorer = SCORERS.get(truth.protocol, score_continuous)
-    return scorer(truth, est)
+    return {"estimate_topic": topic, **scorer(truth, est)}
 
 
 def plot(result: dict[str, Any], folder: Path, force: bool = True) -> list[Path]:

@@ -120,6 +120,20 @@ def test_the_settled_trajectory_by_default_and_the_live_one_on_request(tmp_path,
         got[name] = (lags, json.loads(res.read_text())["pooled"]["tip_rmse_mm"])
     assert got["settled"][0] == {1000.0} and got["display"][0] == {30.0}
     assert got["settled"][1] < got["display"][1]
+    # a live recording holds both: evaluate scores its settled stream unless told otherwise
+    both = tmp_path / "live_recording.mcap"
+    with McapWriter(both) as w:
+        for r in read_messages(live, ["fusion/state"]):
+            w.write("fusion/state", r.message, r.log_time_ns)
+        for r in read_messages(estimate, ["fusion/state"]):
+            w.write("fusion/state_settled", r.message, r.log_time_ns)
+    for topic, want in ((None, "settled"), ("fusion/state", "display")):
+        res = tmp_path / "both.json"
+        argv = ["evaluate", str(session), "--estimate", str(both), "--json", str(res), "--force"]
+        assert tiplog_main(argv + (["--topic", topic] if topic else [])) == 0
+        r = json.loads(res.read_text())
+        assert r["estimate_topic"] == (topic or "fusion/state_settled")
+        assert r["pooled"]["tip_rmse_mm"] == got[want][1]
 
 
 def test_evaluate_keys_and_figures_follow_the_error(tmp_path, session, estimate):
