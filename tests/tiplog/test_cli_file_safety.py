@@ -160,8 +160,8 @@ def test_a_damaged_mcap_is_one_line_naming_where_and_the_way_out(files, capsys, 
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert rc == 2 and len(err) == 1 and "Traceback" not in err[0], err
     assert f"{bad}: " in err[0] and f"`tiplog record recover {bad}`" in err[0], err[0]
-    if kind == "flip":
-        assert "damaged at byte" in err[0] and "CRC" in err[0], err[0]
+    if kind == "flip":  # inside a compressed chunk: its CRC fails, or the decompressor before it
+        assert "damaged at byte" in err[0] and ("CRC" in err[0] or "unreadable record" in err[0]), err[0]
     assert snapshot(files) == before
 
 
