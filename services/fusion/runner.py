@@ -17,8 +17,8 @@ can still be applied at its time has arrived, `max_age_ms` after it: the causal 
 every late frame applied at its time, which the display stream converges to. `output="settled"`
 publishes only that (offline: no frame is ever late, so nothing is rewound); `output="both"`
 (the live service) returns the display stream from `advance` and the settled one from
-`take_settled`. The settled states of "both" equal those of "settled" to within the rounding of
-the ToF map's rewinds (well under a nanometre).
+`take_settled`. The settled states of "both" equal those of "settled" (bit for bit in the tests;
+a rewound map could leave a difference in the last bits).
 """
 
 from __future__ import annotations
@@ -288,8 +288,8 @@ class FusionRunner:
         }
 
     # ------------------------------------------------------------------ machinery
-    def _neutral(self) -> np.ndarray:
-        n = self._track.neutral_u
+    def _neutral(self, tr: _Track | None = None) -> np.ndarray:
+        n = (tr or self._track).neutral_u
         return n if n is not None else np.array([0.0, 0.0, -1.0])
 
     def _run_due(self, now_ns: int | None, out: list[StateSample]) -> None:
@@ -329,8 +329,7 @@ class FusionRunner:
         self._last_settled_t = t_k
         tr = self._snaps[i]
         if tr.state is not None and tr.state.finite():
-            neutral = tr.neutral_u if tr.neutral_u is not None else np.array([0.0, 0.0, -1.0])
-            self._settled.append(make_sample(tr.state, self.calib.rcm_base_m, neutral, self.lock_ns))
+            self._settled.append(make_sample(tr.state, self.calib.rcm_base_m, self._neutral(tr), self.lock_ns))
 
     def _publish_next(self, out: list[StateSample]) -> None:
         cutoff, t_k, key_k = self._gyro_due.popleft()
