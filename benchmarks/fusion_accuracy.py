@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace, variants: list[str]) -> int:
     params = Params.load_yaml(args.params) if args.params else Params()
     given = Calibration.load_yaml(args.calibration) if args.calibration else None
+    output = "display" if args.as_live else "settled"
     results = []
     counts = [BLACKOUT_COUNT] * len(args.sessions)
     if args.shared_blackouts:
@@ -113,12 +114,12 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
                 est = Estimate(np.array([s.stamp_ns for s in sm], np.int64), np.array([s.p_tip_base_m for s in sm]))
                 diag = {"resets": 0}
             else:
-                est, diag, cpu = run_variant(use, calib, params, sensors, "display" if args.as_live else "settled")
+                est, diag, cpu = run_variant(use, calib, params, sensors, output)
             r = score_continuous(truth, est)
             row = {
                 "session": Path(path).name,
                 "variant": v,
-                "output": "display" if args.as_live and not smoothed else ("smoothed" if smoothed else "settled"),
+                "output": "smoothed" if smoothed else output,
                 "pooled": r["pooled"],
                 "blocks": r["blocks"],
                 "block_mean_mm": float(np.mean([b["tip_rmse_mm"] for b in r["blocks"]])),

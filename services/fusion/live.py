@@ -178,7 +178,7 @@ class LiveFusion:
             self._log.write(topic, msg, a)
 
     def _publish_state(self, s: Any, t_now: int) -> None:
-        if not (np.all(np.isfinite(s.p_tip_base_m)) and np.all(np.isfinite(s.q_base_tool))):
+        if not _finite(s):
             return  # never publish NaN (the runner should not return one)
         lag_ms = (t_now - s.stamp_ns) * 1e-6
         self._state_lag_ms = lag_ms
@@ -188,7 +188,7 @@ class LiveFusion:
         self.published += 1
 
     def _publish_settled(self, s: Any, t_now: int) -> None:
-        if not (np.all(np.isfinite(s.p_tip_base_m)) and np.all(np.isfinite(s.q_base_tool))):
+        if not _finite(s):
             return
         self._settled_pub.put(to_fusion_state(s, lag_ms=(t_now - s.stamp_ns) * 1e-6, seq=self.settled))
         self.settled += 1
@@ -221,6 +221,10 @@ class LiveFusion:
             inputs=self.inputs,
             queue_drops=self.queue_drops,
         )
+
+
+def _finite(s: Any) -> bool:
+    return bool(np.all(np.isfinite(s.p_tip_base_m)) and np.all(np.isfinite(s.q_base_tool)))
 
 
 def _json(d: dict) -> str:
