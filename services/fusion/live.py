@@ -119,9 +119,31 @@ class LiveFusion:
                 if now >= next_diag:
                     next_diag = now + self._diag_period_ns
                     self._diag_pub.put(self.diagnostics_message(now))
+            self.flush()
         finally:
             if self._log is not None:
                 self._log.close()
+
+    def flush(self) -> None:
+        """At stop: whatever is queued fed, then every state not yet published, as `tiplog
+        fusion run` ends its file. No input comes after the stop, so the display stream's last
+        `output_delay_ms` and the settled stream's last `max_age_ms` are final now; without
+        this a recording's settled stream would end a second before its inputs."""
+        now = self.step()
+        if self._offset is None:
+            return
+        t_now = now - self._offset
+        try:
+            samples = self.runner.finish()
+        except Exception:  # as in step(): logged, the stop goes on
+            self.feed_errors += 1
+            log.exception("runner.finish failed")
+            samples = []
+        for s in samples:
+            self._publish_state(s, t_now)
+        for s in self.runner.take_settled():
+            self._publish_settled(s, t_now)
+        self._diag_pub.put(self.diagnostics_message(now))
 
     def step(self) -> int:
         """Feed everything queued, publish every state due; returns the host time used."""
