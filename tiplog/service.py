@@ -3,7 +3,8 @@
     def main(argv=None) -> int:
         return run_service("fusion", FusionConfig, body, argv)
 
-`body(ctx)` does the service's work and returns once `ctx.stop` is set (SIGINT or SIGTERM).
+`body(ctx)` does the service's work and returns once `ctx.stop` is set (SIGINT or SIGTERM; under
+`tiplog up`, SIGTERM only: `SUPERVISED_ENV`).
 The bus, its liveliness token and everything declared on it are closed afterwards, so a
 service stops within a fraction of a second of the signal even while idle.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -24,6 +26,11 @@ from tiplog.cliargs import endpoint
 from tiplog.config import ConfigError, ServiceConfig, dump, load_config
 
 C = TypeVar("C", bound=ServiceConfig)
+
+# Set by `tiplog up` for its services. A terminal's Ctrl-C reaches every process of the group at
+# once; supervised, a service leaves SIGINT to the supervisor, which stops them with SIGTERM in
+# order (the recorder last, so that it records what the others publish as they stop).
+SUPERVISED_ENV = "TIPLOG_SUPERVISED"
 log = logging.getLogger("tiplog.service")
 
 
@@ -133,7 +140,12 @@ def run_service(
         received.append(signum)
         threading.Thread(target=stop.set, name="stop", daemon=True).start()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    supervised = os.environ.get(SUPERVISED_ENV) == "1"
+    old = {
+        s: signal.signal(s, on_signal) for s in ((signal.SIGTERM,) if supervised else (signal.SIGINT, signal.SIGTERM))
+    }
+    if supervised:
+        old[signal.SIGINT] = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         try:
             bus = Bus(config.bus, service=name, stop=stop)

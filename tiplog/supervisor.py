@@ -30,6 +30,8 @@ class Child:
     name: str
     spawn: Callable[[], subprocess.Popen]
     ready: Callable[[], bool] = lambda: True  # may it start now (e.g. its calibration exists)
+    stop_last: bool = False  # stopped only once the others have exited (the recorder: what they
+    # publish as they stop, such as fusion's last settled second, is still recorded)
     proc: subprocess.Popen | None = None
     state: int = R.SERVICE_RUN_STATE_WAITING
     restarts: int = 0
@@ -122,8 +124,18 @@ class Supervisor:
             log.debug("supervisor status not published: %s", e)
 
     def stop(self, grace_s: float = 5.0) -> None:
-        """SIGTERM every running service, SIGKILL what is left after `grace_s`."""
-        running = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
+        """SIGTERM every running service, SIGKILL what is left after `grace_s`: first those
+        not marked `stop_last`, then, once they have exited, the rest."""
+        for last in (False, True):
+            self._stop_group([c for c in self.children if c.stop_last == last], grace_s)
+        for c in self.children:
+            c.state = R.SERVICE_RUN_STATE_STOPPED
+            c.proc = None
+        self.report("stopped")
+
+    @staticmethod
+    def _stop_group(children: list[Child], grace_s: float) -> None:
+        running = [c for c in children if c.proc is not None and c.proc.poll() is None]
         for c in running:
             c.proc.send_signal(signal.SIGTERM)
         end = time.monotonic() + grace_s
@@ -134,7 +146,3 @@ class Supervisor:
                 log.warning("%s did not stop within %.0f s: killed", c.name, grace_s)
                 c.proc.kill()
                 c.proc.wait()
-        for c in self.children:
-            c.state = R.SERVICE_RUN_STATE_STOPPED
-            c.proc = None
-        self.report("stopped")

@@ -28,6 +28,7 @@ from tiplog.bus import Bus, BusConfig
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.cliargs import endpoint
 from tiplog.config import load_section
+from tiplog.service import SUPERVISED_ENV
 from tiplog.supervisor import Child, Supervisor
 from tiplog.userio import UserError, input_file
 
@@ -57,6 +58,7 @@ def register(p: argparse.ArgumentParser) -> None:
 
 # Services that read the calibration file (`calibration_file` in their configuration).
 CALIBRATION_READERS = ("fusion", "recorder", "dashboard")
+STOP_LAST = ("recorder",)  # records what the others publish as they stop
 
 
 def _config_fields(name: str) -> set[str]:
@@ -104,7 +106,7 @@ def _spawn(name: str, endpoint: str, config: str | None, sets: list[str] = ()) -
         cmd += ["--config", config]
     for s in sets:
         cmd += ["--set", s]
-    return subprocess.Popen(cmd, env=os.environ.copy())
+    return subprocess.Popen(cmd, env={**os.environ, SUPERVISED_ENV: "1"})
 
 
 def banner(names: list[str], config: str | None) -> str:
@@ -147,7 +149,10 @@ def run(args: argparse.Namespace) -> int:
         ) from None
     with bus:
         status_pub = bus.publisher("system/supervisor")
-        children = [Child(n, functools.partial(_spawn, n, args.listen, args.config, sets[n])) for n in names]
+        children = [
+            Child(n, functools.partial(_spawn, n, args.listen, args.config, sets[n]), stop_last=n in STOP_LAST)
+            for n in names
+        ]
         for c in children:
             # The services that read the calibration at start wait for the bench to write it.
             if c.name in CALIBRATION_READERS and calibration is not None:

@@ -132,17 +132,7 @@ class LiveFusion:
         now = self.step()
         if self._offset is None:
             return
-        t_now = now - self._offset
-        try:
-            samples = self.runner.finish()
-        except Exception:  # as in step(): logged, the stop goes on
-            self.feed_errors += 1
-            log.exception("runner.finish failed")
-            samples = []
-        for s in samples:
-            self._publish_state(s, t_now)
-        for s in self.runner.take_settled():
-            self._publish_settled(s, t_now)
+        self._publish_due(self.runner.finish, now - self._offset)
         self._diag_pub.put(self.diagnostics_message(now))
 
     def step(self) -> int:
@@ -155,17 +145,21 @@ class LiveFusion:
             self._feed(topic, msg, arrival)
         if self._offset is not None:
             t_now = now - self._offset
-            try:
-                samples = self.runner.advance(t_now)
-            except Exception:  # the filter's bug must not stop the service; it is logged
-                self.feed_errors += 1
-                log.exception("runner.advance failed")
-                samples = []
-            for s in samples:
-                self._publish_state(s, t_now)
-            for s in self.runner.take_settled():
-                self._publish_settled(s, t_now)
+            self._publish_due(lambda: self.runner.advance(t_now), t_now)
         return now
+
+    def _publish_due(self, run: Callable[[], list], t_now: int) -> None:
+        """Both streams' states that `run` (the runner's advance or finish) makes due."""
+        try:
+            samples = run()
+        except Exception:  # the filter's bug must not stop the service; it is logged
+            self.feed_errors += 1
+            log.exception("the fusion runner failed")
+            samples = []
+        for s in samples:
+            self._publish_state(s, t_now)
+        for s in self.runner.take_settled():
+            self._publish_settled(s, t_now)
 
     def _feed(self, topic: str, msg: Any, arrival: int) -> None:
         if topic in _CLOCK_TOPICS:

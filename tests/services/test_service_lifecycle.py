@@ -14,15 +14,16 @@ import pytest
 from services.bench.app import BenchConfig, write_calibration
 from tests.conftest import ROOT
 from tiplog.bus import Bus
+from tiplog.service import SUPERVISED_ENV
 
 SERVICES = ["sensor_gateway", "vision", "fusion", "recorder", "dashboard", "bench"]
 
 
-def _start(name: str, endpoint: str, prefix: str, *extra: str) -> subprocess.Popen:
+def _start(name: str, endpoint: str, prefix: str, *extra: str, env: dict[str, str] | None = None) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", f"services.{name}", "--connect", endpoint, "--prefix", prefix, *extra],
         cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env={**os.environ, "PYTHONPATH": str(ROOT), **(env or {})},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -58,6 +59,27 @@ def test_service_joins_and_stops_on_signal(name, sig, bus_pair_configs, tmp_path
         assert rc == 0, err
         assert down.wait(5), "liveliness token still present after exit"
         assert "configuration:" in err  # the resolved configuration is logged
+
+
+def test_under_tiplog_up_a_service_leaves_sigint_to_the_supervisor(bus_pair_configs):
+    # A terminal's Ctrl-C reaches every process of `tiplog up`'s group; the supervisor then
+    # stops them with SIGTERM, the recorder last. Both signals sent: SIGTERM is what stops it.
+    listen_cfg, _ = bus_pair_configs
+    up = threading.Event()
+    with Bus(listen_cfg) as bus:
+        bus.watch_alive(lambda service, alive: alive and service == "recorder" and up.set())
+        proc = _start("recorder", listen_cfg.listen[0], listen_cfg.prefix, env={SUPERVISED_ENV: "1"})
+        try:
+            assert up.wait(30), "recorder never declared its liveliness token"
+            proc.send_signal(signal.SIGINT)
+            proc.send_signal(signal.SIGTERM)
+            rc = proc.wait(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        _, err = proc.communicate()
+    assert rc == 0, err
+    assert "stopped on SIGTERM" in err, err[-2000:]
 
 
 def test_bad_config_value_exits_2_with_one_line(tmp_path):

@@ -72,8 +72,14 @@ class UpRun:
         }
         cmd = [sys.executable, "-m", "tiplog.cli", "up", "--listen", self.endpoint, "-c", str(cfg)]
         cmd += ["--services", ",".join(self.services)]
+        # its own process group, as a shell gives a foreground job: Ctrl-C reaches the group
         self.proc = subprocess.Popen(
-            cmd, cwd=ROOT, env=env, stdout=self.stdout_path.open("w"), stderr=self.stderr_path.open("w")
+            cmd,
+            cwd=ROOT,
+            env=env,
+            stdout=self.stdout_path.open("w"),
+            stderr=self.stderr_path.open("w"),
+            start_new_session=True,
         )
         self.bus = Bus(BusConfig(mode="client", connect=[self.endpoint], listen=[]))
         self.bus.subscribe("system/supervisor", self._on_status)
@@ -134,18 +140,19 @@ class UpRun:
         return "\n".join(self.stderr_path.read_text(errors="replace").splitlines()[-n:])
 
     def stop(self, timeout_s: float = 60.0) -> int:
-        """Ctrl-C, as a user would; returns tiplog up's exit status."""
+        """Ctrl-C, as a user would (SIGINT to the whole process group, as a terminal sends it);
+        returns tiplog up's exit status."""
         if self.bus is not None:
             self.bus.close()
             self.bus = None
         if self.proc is None:
             return 0
         if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
+            os.killpg(self.proc.pid, signal.SIGINT)
             try:
                 self.proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
-                self.proc.kill()
+                os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(10)
         return self.proc.returncode
 

@@ -63,6 +63,10 @@ def test_whole_system_60s_rates_live_vs_offline_and_dashboard(tmp_path):
 
     truth = read_track(rec, "bench/robot")
     live = read_track(rec, "fusion/state")
+    # Ctrl-C stops the recorder last, so the file holds what fusion published as it stopped:
+    # the settled stream's last second (it runs max_age_ms behind) reaches the display's end.
+    settled = read_track(rec, "fusion/state_settled")
+    assert settled.stamp_ns[-1] >= live.stamp_ns[-1] - 50_000_000, (settled.stamp_ns[-1], live.stamp_ns[-1])
     offline_path = tmp_path / "offline.mcap"
     subprocess.run(
         [sys.executable, "-m", "tiplog.cli", "fusion", "run", str(rec), "--out", str(offline_path), "--quiet"],

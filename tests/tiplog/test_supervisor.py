@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 from tiplog.supervisor import Child, Supervisor
 from tiplog.v1 import system_pb2
@@ -96,3 +97,38 @@ def test_a_killed_service_is_named_by_its_signal():
     sup.poll()
     assert c.last_exit_code == -9
     assert any("recorder killed by SIGKILL" in s.event for s in published)
+
+
+def on_sigterm_note(name: str, log: str, delay_s: float):
+    """A child that, on SIGTERM, waits `delay_s` and then appends its name to `log`."""
+    code = (
+        "import signal, sys, time\n"
+        "def h(*_):\n"
+        f"    time.sleep({delay_s})\n"
+        f"    open({log!r}, 'a').write({name!r} + '\\n')\n"
+        "    sys.exit(0)\n"
+        "signal.signal(signal.SIGTERM, h)\n"
+        f"open({log!r} + '.{name}', 'w').close()\n"
+        "time.sleep(60)\n"
+    )
+    return lambda: subprocess.Popen([sys.executable, "-c", code])
+
+
+def test_stop_last_waits_for_the_others_to_exit(tmp_path):
+    # fusion takes 0.5 s to stop (publishing what it still holds); the recorder must still be
+    # running then. Signalled together, the recorder would have stopped first.
+    log = str(tmp_path / "order")
+    children = [
+        Child("recorder", on_sigterm_note("recorder", log, 0.0), stop_last=True),
+        Child("fusion", on_sigterm_note("fusion", log, 0.5)),
+    ]
+    sup = Supervisor(children, clock=Clock())
+    sup.poll()
+    for name in ("recorder", "fusion"):  # both handlers installed before the stop
+        for _ in range(300):
+            if (tmp_path / f"order.{name}").exists():
+                break
+            time.sleep(0.05)
+    sup.stop(grace_s=10)
+    assert (tmp_path / "order").read_text().split() == ["fusion", "recorder"]
+    assert all(c.state == R.SERVICE_RUN_STATE_STOPPED for c in children)
