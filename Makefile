@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 
-.PHONY: demo test install browser proto lint bench clean
+.PHONY: demo test install browser compose proto lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -17,7 +17,11 @@ install: $(STAMP)
 
 # Debian's Chromium for the browser tests (never a downloaded browser build).
 browser:
-	bash scripts/install-browser.sh
+	bash scripts/install-debian.sh /usr/bin/chromium chromium "the browser tests"
+
+# Debian's docker-compose, to check compose.yaml in the tests (no container engine needed).
+compose:
+	bash scripts/install-debian.sh docker-compose docker-compose "the compose check"
 
 demo: $(STAMP)
 	$(VENV)/bin/tiplog up -c config/demo.yaml
@@ -29,7 +33,7 @@ $(MCAP_NODE)/node_modules/.installed: $(MCAP_NODE)/package-lock.json
 	if command -v npm >/dev/null; then cd $(MCAP_NODE) && npm ci --no-audit --no-fund && touch node_modules/.installed; \
 	else echo "npm not found: the TypeScript MCAP reader test will be skipped"; fi
 
-test: $(STAMP) browser $(MCAP_NODE)/node_modules/.installed
+test: $(STAMP) browser compose $(MCAP_NODE)/node_modules/.installed
 	$(PY) -m pytest -q
 
 # Regenerate tiplog/v1 from proto/ (tests fail when the committed code differs).

@@ -91,6 +91,9 @@ def test_the_file_is_the_cart_the_issue_describes():
         extras = (s["build"].get("args", {}) if isinstance(s["build"], dict) else {}).get("EXTRAS", "")
         assert (extras == "vision") == (name == "vision")  # the only image with torch
     assert "recordings:/recordings" in svc["recorder"]["volumes"]
+    # the recorder starts before and stops after every service whose messages it records
+    for name in ("sensor_gateway", "bench", "vision", "fusion"):
+        assert svc[name]["depends_on"]["recorder"]["condition"] == "service_started", name
     assert any(d.endswith(":/dev/ttyACM0") for d in svc["sensor_gateway"]["devices"])
     assert "/dev/bus/usb:/dev/bus/usb" in svc["sensor_gateway"]["volumes"]
     assert svc["dashboard"]["ports"] == ["8000:8000"]
