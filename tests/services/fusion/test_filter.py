@@ -790,3 +790,39 @@ def test_at_rest_the_vertical_gyro_bias_is_learnt_without_vision():
         else:
             assert "updates:rest" not in s.counts
     assert abs(heading[True]) < 4.0 and abs(heading[False]) > 15.0, heading
+
+
+def test_without_vision_a_rest_moves_the_bias_alone():
+    """A rest measures the gyro bias. While b_rho is held (no vision tip within the offset
+    window) it moves the bias only and takes no variance from the attitude through its
+    correlation with the bias; with a fresh vision tip it is the full Kalman update."""
+    c = _calib()
+    R, _ = _pose()
+    f_imu = c.R_tool_imu.T @ R.T @ (-G)
+    rng = np.random.default_rng(3)
+    M = rng.normal(size=(N, N))
+    P0 = M @ M.T * 1e-6 + np.eye(N) * 1e-8  # every state correlated with the bias
+    measured = np.radians([0.3, -0.2, 0.5])
+    out = {}
+    for fresh_tip in (False, True):
+        f = TrackingFilter(c, Params(), frozenset({"imu", "tof", "vision"}))
+        s = f.new_state(0, R, 0.14, f_imu)
+        s.P[:] = P0
+        s.last_tip_ns = 0 if fresh_tip else -(1 << 62)
+        assert f.brho_free(s) == fresh_tip
+        s.rest[25:28] = measured
+        R0, p0 = s.R.copy(), s.p.copy()
+        assert f.update_rest(s)
+        out[fresh_tip] = (s.P.copy(), s.bg.copy(), np.abs(s.R - R0).max(), np.abs(s.p - p0).max())
+    P_held, bg_held, dR_held, dp_held = out[False]
+    P_free, _, dR_free, _ = out[True]
+    others = np.r_[0:9, 12:N]
+    # held: the bias moved towards the measurement and its variance shrank; nothing else moved
+    assert np.all(np.abs(bg_held - measured) < np.abs(measured))
+    assert np.trace(P_held[9:12, 9:12]) < np.trace(P0[9:12, 9:12])
+    assert dR_held == 0.0 and dp_held == 0.0
+    np.testing.assert_array_equal(P_held[np.ix_(others, others)], P0[np.ix_(others, others)])
+    assert np.allclose(P_held, P_held.T) and np.linalg.eigvalsh(P_held).min() > 0
+    # a fresh tip: the full update turns the attitude too and takes variance from it
+    assert dR_free > 0.0
+    assert np.trace(P_free[6:9, 6:9]) < np.trace(P0[6:9, 6:9])
