@@ -62,6 +62,17 @@ def topic_rates(path: str | Path) -> dict[str, TopicRate]:
     return out
 
 
+def status_changes(path: str | Path) -> int:
+    """device/status messages that the gateway published at once on a change of state (state
+    or message other than the previous one's), not at its period."""
+    prev, n = None, 0
+    for rec in read_messages(path, ["device/status"]):
+        key = (rec.message.state, rec.message.message)
+        n += prev is not None and key != prev
+        prev = key
+    return n
+
+
 @dataclass
 class Track:
     """Tip positions [m, base frame] at header stamps [ns], shape (N,), (N, 3)."""
