@@ -141,9 +141,8 @@ def run_service(
         threading.Thread(target=stop.set, name="stop", daemon=True).start()
 
     supervised = os.environ.get(SUPERVISED_ENV) == "1"
-    old = {
-        s: signal.signal(s, on_signal) for s in ((signal.SIGTERM,) if supervised else (signal.SIGINT, signal.SIGTERM))
-    }
+    handled = (signal.SIGTERM,) if supervised else (signal.SIGINT, signal.SIGTERM)
+    old = {s: signal.signal(s, on_signal) for s in handled}
     if supervised:
         old[signal.SIGINT] = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
