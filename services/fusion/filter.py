@@ -344,8 +344,13 @@ class TrackingFilter:
         the depth would walk away without a junction in view)."""
         return self.vision and (s.t_ns - s.last_tip_ns) <= self._brho_window_ns
 
-    def _update(self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str) -> bool:
-        status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, not self.brho_free(s))
+    def _update(
+        self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
+        gain: tuple[int, int] | None = None,
+    ) -> bool:  # fmt: skip
+        """`kernels.update`, the error states given gain (lo, hi) by default all but a held b_rho."""
+        lo, hi = gain if gain is not None else (0, kernels.gain_hi(not self.brho_free(s)))
+        status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, lo, hi)
         if status:
             _bump(s.counts, f"rejected:{name}:innovation")
             return False
@@ -375,7 +380,7 @@ class TrackingFilter:
         gate = prm.gate_chi2_2
         # switched off (0) or at the gate, nothing passes the gate and fails the confirmation
         confirm = prm.tip_confirm_chi2 if 0.0 < prm.tip_confirm_chi2 < gate else gate
-        status, nis, dx = kernels.update(s.P, H, y, r_var, confirm, not self.brho_free(s))
+        status, nis, dx = kernels.update(s.P, H, y, r_var, confirm, 0, kernels.gain_hi(not self.brho_free(s)))
         if status == 0:
             if held is not None:
                 _bump(s.counts, "rejected:vision_tip:unconfirmed")
@@ -437,37 +442,15 @@ class TrackingFilter:
         """The tool at rest: the mean gyro rate over a chunk of rest (`kernels.rest_sample`)
         is the bias, w = b_g. The gate turns away a slow steady turn taken for rest once the
         bias is known better than that turn's rate. While b_rho is held (no vision tip within
-        the offset window) it moves the bias alone (`rest_bias_only`, `_update_bias_only`)."""
-        y = s.rest[25:28] - s.bg
-        if self.prm.rest_bias_only and not self.brho_free(s):
-            return self._update_bias_only(s, y, self._rest_var, self.prm.gate_chi2_3, "rest")
-        return self._update(s, self._rest_H, y, self._rest_var, self.prm.gate_chi2_3, "rest")
-
-    def _update_bias_only(self, s: State, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str) -> bool:
-        """The gyro bias from a direct measurement of it (innovation y, variances r_var): a
-        Schmidt (consider) update, with no gain on any other state, so that no other state's
-        variance shrinks through its correlation with the bias. Without vision the heading's
-        error is mostly not the bias's doing (the ToF's and the accelerometer's pose-locked
-        errors turn it too), and a rest between blocks took the heading's sigma from 8-10 deg to
-        2-3 deg while the heading was 7-34 deg off (tuning seeds 1000-1003, IMU+ToF, before the
-        depth sweep), which then could not pull it back. Joseph form for that gain."""
-        P = s.P
-        Pbb = P[IBG, IBG].copy()
-        S = Pbb + np.diag(r_var)
-        Si = np.linalg.inv(S)
-        nis = float(y @ Si @ y)
-        if not nis <= chi2:
-            _bump(s.counts, f"rejected:{name}:innovation")
-            return False
-        K = Pbb @ Si
-        A = np.eye(3) - K
-        P[:, IBG] = P[:, IBG] @ A.T
-        P[IBG, :] = P[:, IBG].T
-        P[IBG, IBG] = A @ Pbb @ A.T + (K * r_var) @ K.T
-        dx = np.zeros(N)
-        dx[IBG] = K @ y
-        self._apply(s, name, nis, dx)
-        return True
+        the offset window) it moves the gyro bias alone (`rest_bias_only`): a Schmidt update,
+        no gain on any other state, so that no other state's variance shrinks through its
+        correlation with the bias. Without vision the heading's error is mostly not the bias's
+        doing (the ToF's and the accelerometer's pose-locked errors turn it too), and a rest
+        between blocks took the heading's sigma from 8-10 deg to 2-3 deg while the heading was
+        7-34 deg off (tuning seeds 1000-1003, IMU+ToF, before the depth sweep), which then
+        could not pull it back."""
+        gain = (IBG.start, IBG.stop) if self.prm.rest_bias_only and not self.brho_free(s) else None
+        return self._update(s, self._rest_H, s.rest[25:28] - s.bg, self._rest_var, self.prm.gate_chi2_3, "rest", gain)
 
     def update_tof(self, s: State, range_m: float) -> bool:
         """Raw range through the ray-plane model rho = (h - m.(p + R o)) / (m.(R b)) + b_rho;

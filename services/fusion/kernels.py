@@ -210,15 +210,23 @@ def _matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def gain_hi(freeze_last: bool) -> int:
+    """`update`'s hi: every error state, or all but the last (b_rho, held)."""
+    return N - 1 if freeze_last else N
+
+
+@njit(cache=True)
 def update(
-    P: np.ndarray, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, freeze_last: bool
+    P: np.ndarray, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, lo: int, hi: int
 ) -> tuple[int, float, np.ndarray]:
     """Kalman update of P (16, 16) in place with H (m, 16), innovation y (m,), measurement
     variances r_var (m,). Returns (status, NIS, dx): status 0 applied, 1 rejected by the
-    chi-square gate (or an innovation covariance that is not positive definite). With
-    freeze_last the last error state (b_rho) gets no gain, and P follows the Joseph form for
-    that gain, expanded: P - K H P - P H^T K^T + K S K^T. Written out in loops (S by
-    Cholesky): at m <= 4 the BLAS and LAPACK calls cost more than the arithmetic."""
+    chi-square gate (or an innovation covariance that is not positive definite). Only the
+    error states lo..hi-1 get gain (a Schmidt update: `gain_hi(freeze_last)` leaves out b_rho
+    while it is held; the rest without vision moves the gyro bias alone); with any left out, P
+    follows the Joseph form for that gain, expanded: P - K H P - P H^T K^T + K S K^T. Written
+    out in loops (S by Cholesky): at m <= 4 the BLAS and LAPACK calls cost more than the
+    arithmetic."""
     m = y.shape[0]
     PHt = np.zeros((N, m))
     for a in range(m):
@@ -266,9 +274,11 @@ def update(
     if not nis <= chi2:
         return 1, nis, np.zeros(N)
     K = _matmul(PHt, Sinv)
-    if freeze_last:
-        for b in range(m):
-            K[N - 1, b] = 0.0
+    if lo > 0 or hi < N:
+        for i in range(N):
+            if i < lo or i >= hi:
+                for b in range(m):
+                    K[i, b] = 0.0
         KS = _matmul(K, S)
         for i in range(N):
             for j in range(i, N):
@@ -404,7 +414,7 @@ def gyro_step(
         H, y = rcm_jacobian(R, p, rcm)
         r_var = np.empty(2)
         r_var[0] = r_var[1] = k[4]
-        status, nis, dx = update(P, H, y, r_var, k[5], freeze_last)
+        status, nis, dx = update(P, H, y, r_var, k[5], 0, gain_hi(freeze_last))
         if status == 0:
             dbrho = inject(p, v, R, bg, ba, dx, P)
     hl = health(p, v, R, P, k[6], k[7])
@@ -449,7 +459,7 @@ def gravity_step(
     sig = (g[0] + g[1] * excess) * 9.80665
     r_var = np.empty(3)
     r_var[0] = r_var[1] = r_var[2] = sig * sig
-    status, nis, dx = update(P, H, y, r_var, g[2], freeze_last)
+    status, nis, dx = update(P, H, y, r_var, g[2], 0, gain_hi(freeze_last))
     dbrho = 0.0
     if status == 0:
         dbrho = inject(p, v, R, bg, ba, dx, P)

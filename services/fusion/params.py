@@ -78,7 +78,7 @@ class Params:
     rest_agree_accel_mps2: float = 0.05  # and its mean specific force within this
     # ... and while b_rho is held (no vision tip within the offset window) the rest moves the
     # bias alone, taking no variance from the heading through its correlation with the bias
-    # (filter._update_bias_only). Tuning seeds 1000-1003, IMU+ToF sweeps / teleop, geometric
+    # (filter.update_rest). Tuning seeds 1000-1003, IMU+ToF sweeps / teleop, geometric
     # means: 33.1 / 20.1 -> 27.6 / 20.0 mm; with vision nothing changes
     rest_bias_only: bool = True
     rest_sigma_dps: float = 0.01  # added to the chunk mean's noise: motion below the thresholds

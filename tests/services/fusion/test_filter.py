@@ -90,7 +90,7 @@ def test_kernels_match_numpy():
     y = rng.normal(size=2) * 1e-3
     r = np.array([1e-6, 2e-6])
     P = P0.copy()
-    status, nis, dx = kernels.update(P, H, y, r, 1e9, False)
+    status, nis, dx = kernels.update(P, H, y, r, 1e9, 0, N)
     S = H @ P0 @ H.T + np.diag(r)
     K = P0 @ H.T @ np.linalg.inv(S)
     assert status == 0
