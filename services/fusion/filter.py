@@ -344,12 +344,17 @@ class TrackingFilter:
         the depth would walk away without a junction in view)."""
         return self.vision and (s.t_ns - s.last_tip_ns) <= self._brho_window_ns
 
+    def _gain(self, s: State) -> tuple[int, int]:
+        """The error states an update gives gain by default (`kernels.update`'s lo, hi): all but
+        a held b_rho."""
+        return 0, kernels.gain_hi(not self.brho_free(s))
+
     def _update(
         self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
         gain: tuple[int, int] | None = None,
     ) -> bool:  # fmt: skip
-        """`kernels.update`, the error states given gain (lo, hi) by default all but a held b_rho."""
-        lo, hi = gain if gain is not None else (0, kernels.gain_hi(not self.brho_free(s)))
+        """`kernels.update`, the error states given gain (lo, hi) by default `_gain(s)`."""
+        lo, hi = gain if gain is not None else self._gain(s)
         status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, lo, hi)
         if status:
             _bump(s.counts, f"rejected:{name}:innovation")
@@ -380,7 +385,7 @@ class TrackingFilter:
         gate = prm.gate_chi2_2
         # switched off (0) or at the gate, nothing passes the gate and fails the confirmation
         confirm = prm.tip_confirm_chi2 if 0.0 < prm.tip_confirm_chi2 < gate else gate
-        status, nis, dx = kernels.update(s.P, H, y, r_var, confirm, 0, kernels.gain_hi(not self.brho_free(s)))
+        status, nis, dx = kernels.update(s.P, H, y, r_var, confirm, *self._gain(s))
         if status == 0:
             if held is not None:
                 _bump(s.counts, "rejected:vision_tip:unconfirmed")
