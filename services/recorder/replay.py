@@ -31,6 +31,8 @@ SPIN_NS = 100_000
 # Playback speed factors: a thousandth of real time stretches a minute over 17 hours; faster
 # than a thousand times, --max (as fast as possible) is what is meant.
 MIN_SPEED, MAX_SPEED = 0.001, 1000.0
+# A put later than this against its due time is counted late in the report.
+LATE_NS = 1_000_000
 # Published by the live system itself: replaying them would confuse the running services.
 # `_rejected/` holds payloads the recorder kept out of their topics (admission.py): never
 # published again unless named.
@@ -43,6 +45,7 @@ class ReplayReport:
     skipped_topics: set[str] = field(default_factory=set)
     duration_s: float = 0.0
     max_late_ns: int = 0  # worst lateness of a put against its due time
+    late_puts: int = 0  # puts more than LATE_NS after their due time (the host's scheduler)
     salvage: Salvage | None = None  # set for a file cut short: how far it could be read
 
     @property
@@ -144,6 +147,7 @@ def replay(
                 if stop is not None and stop.is_set():
                     break
                 rep.max_late_ns = max(rep.max_late_ns, late)
+                rep.late_puts += late > LATE_NS
             pub.put_bytes(message.data)
             rep.messages_by_topic[topic] += 1
     rep.duration_s = (time.monotonic_ns() - t_start) / NS_PER_S

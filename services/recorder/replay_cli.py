@@ -7,7 +7,7 @@ import argparse
 import sys
 import threading
 
-from services.recorder.replay import MAX_SPEED, MIN_SPEED
+from services.recorder.replay import LATE_NS, MAX_SPEED, MIN_SPEED
 from tiplog.bus import BusConfig
 from tiplog.cliargs import finite
 from tiplog.config import load_config
@@ -83,7 +83,10 @@ def _run(args: argparse.Namespace) -> int:
             stop=stop,
             wait_s=args.wait,
         )
-    print(f"replayed {rep.messages} messages in {rep.duration_s:.2f} s (worst lateness {rep.max_late_ns / 1e6:.2f} ms)")
+    print(
+        f"replayed {rep.messages} messages in {rep.duration_s:.2f} s "
+        f"(worst lateness {rep.max_late_ns / 1e6:.2f} ms, {rep.late_puts} late by over {LATE_NS / 1e6:g} ms)"
+    )
     for topic, n in sorted(rep.messages_by_topic.items()):
         print(f"  {topic:<24}{n:>10}")
     if rep.skipped_topics:
