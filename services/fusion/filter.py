@@ -61,7 +61,7 @@ class State:
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "accel_n", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
-        "t_init_ns", "tof_last", "rest", "tip_held", "f_corr", "f_corr_ns", "acc", "acc_bin", "acc_t",
+        "t_init_ns", "tof_last", "depth_ref", "rest", "tip_held", "f_corr", "f_corr_ns", "acc", "acc_bin", "acc_t",
     )  # fmt: skip
     # arrays a copy shares with its original: the filter replaces them, never changes them in place
     SHARED = ("w_imu", "f_imu", "f_corr")
@@ -72,6 +72,7 @@ class State:
         s.t_ns, s.brho, s.gyro_n, s.t_init_ns = self.t_ns, self.brho, self.gyro_n, self.t_init_ns
         s.accel_n, s.last_tip_ns, s.last_vision_ns = self.accel_n, self.last_tip_ns, self.last_vision_ns
         s.vis_reject_run, s.reacq, s.tof_last = self.vis_reject_run, self.reacq, self.tof_last
+        s.depth_ref = self.depth_ref
         s.tip_held, s.w_imu, s.f_imu = self.tip_held, self.w_imu, self.f_imu
         s.f_corr, s.f_corr_ns = self.f_corr, self.f_corr_ns
         s.acc, s.acc_bin, s.acc_t = self.acc.copy(), self.acc_bin, self.acc_t
@@ -195,6 +196,7 @@ class TrackingFilter:
         s.bg = np.zeros(3)
         s.ba = np.zeros(3)
         s.brho = 0.0
+        s.depth_ref = float(depth_m)
         d = np.empty(N)
         d[IP] = (p.init_position_mm * 1e-3) ** 2
         d[IV] = p.init_velocity_mps**2
@@ -486,7 +488,9 @@ class TrackingFilter:
         elif tmap is not None and s.t_ns - s.t_init_ns >= self._map_settle_ns:  # not from a state still converging
             record = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
         y = np.array([range_m - rho])
+        dt_tof = (s.t_ns - s.tof_last[0]) * 1e-9  # since the last range applied
         ok = self._update(s, H, y, r_var, self.prm.gate_chi2_1, "tof")
+        self._anchor_depth(s, dt_tof)
         if ok:
             s.tof_last = (s.t_ns, range_m)
             if record is not None:
@@ -494,6 +498,32 @@ class TrackingFilter:
             elif tmap is not None and not free and weight >= tmap.prior_weight:  # mostly the map's
                 _bump(s.counts, "updates:tof_mapped")
         return ok
+
+    def _anchor_depth(self, s: State, dt_s: float) -> None:
+        """The working depth, at each ToF range (dt_s since the last one applied): while vision
+        was applied within the offset window the reference follows the depth (a running mean
+        over `depth_ref_tau_s`); without vision the depth is drawn to it, `depth_anchor_sigma_mm`
+        per `depth_anchor_tau_s` (the pseudo-measurement's variance scaled by tau / dt, so that
+        its information per second does not depend on the ToF's rate).
+
+        Without vision the range sees the heading only mixed with the depth (about 2.2 mm of
+        depth per degree on the paper's layout), and the accelerometer holds the depth for well
+        under a second, so the range's changes went into the depth while the gyro's bias walked
+        the heading away. The operator keeps a working depth (the paper: 130-150 mm, 85-99 % of
+        the time); with the depth drawn to it, a slow change of the range turns the heading back
+        and only the depth's faster excursions are left to the ToF."""
+        prm = self.prm
+        if prm.depth_anchor_sigma_mm <= 0.0 or not 0.0 < dt_s < 1.0:
+            return
+        u = s.R[:, 2]
+        L = float(u @ (s.p - self.rcm))
+        if self.vision and s.t_ns - s.last_vision_ns <= self._brho_window_ns:
+            s.depth_ref += min(1.0, dt_s / prm.depth_ref_tau_s) * (L - s.depth_ref)
+            return
+        H = np.zeros((1, N))
+        H[0, IP] = u
+        r_var = np.array([(prm.depth_anchor_sigma_mm * 1e-3) ** 2 * prm.depth_anchor_tau_s / dt_s])
+        self._update(s, H, np.array([s.depth_ref - L]), r_var, math.inf, "depth_anchor")
 
     def _tip_disagrees_with_tof(self, s: State, u_c: np.ndarray, d: np.ndarray) -> bool:
         """Whether the depth the junction ray implies on the present shaft line is further than

@@ -24,6 +24,7 @@ _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
 _POSITIVE = (
     "tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", "rest_tau_ms", "rest_chunk_ms", "tip_confirm_ms",
     "tip_confirm_mm", "accel_map_sigma_deg", "accel_map_sigma_mm", "accel_map_bin_ms", "accel_map_every_ms", *_GATES,
+    "depth_anchor_tau_s", "depth_ref_tau_s",
 )  # fmt: skip
 MAX_HISTORY_MS = 120_000.0  # the rewind history lives in memory: a snapshot per gyro sample
 
@@ -128,6 +129,14 @@ class Params:
     # still converging from a single frame (a runner's reset also forgets what the map took
     # from the diverging state after its last vision tip)
     tof_map_settle_ms: float = 1000.0
+    # Without vision the depth is drawn to the working depth (its running mean over
+    # depth_ref_tau_s while vision came), depth_anchor_sigma_mm per depth_anchor_tau_s, so that
+    # the ToF's slow changes turn the heading back instead of moving the depth
+    # (`TrackingFilter._anchor_depth`); 0: off. 5 mm per 5 s is the teleoperated blocks' depth
+    # spread (SD 4-6 mm around the working depth) and a stroke's length
+    depth_anchor_sigma_mm: float = 5.0
+    depth_anchor_tau_s: float = 5.0
+    depth_ref_tau_s: float = 20.0
     # The accelerometer's pose-locked error (its reading turned by a fraction of a degree that
     # depends on the pose, the same on every pass) learnt as the ToF's is (tof_map.py): the
     # gravity update's residual, recorded while b_rho is free (vision tips) and |f| is within

@@ -826,3 +826,39 @@ def test_without_vision_a_rest_moves_the_bias_alone():
     # a fresh tip: the full update turns the attitude too and takes variance from it
     assert dR_free > 0.0
     assert np.trace(P_free[6:9, 6:9]) < np.trace(P0[6:9, 6:9])
+
+
+def _depth(f: TrackingFilter, s) -> float:
+    return float(s.R[:, 2] @ (s.p - f.rcm))
+
+
+def test_without_vision_the_depth_is_drawn_to_the_working_depth_and_with_vision_follows():
+    """`depth_anchor_sigma_mm`: with vision recent the working depth follows the depth (running
+    mean); once vision has been away past the offset window each range draws the depth to it
+    (`updates:depth_anchor`), more the smaller the sigma; 0 switches it off."""
+    moved = {}
+    for sigma in (0.0, 5.0, 1.0):
+        f, s, R, p = _run_static(3.0, np.zeros(3), params=Params(depth_anchor_sigma_mm=sigma))
+        with_vision = s.copy()
+        ref0 = with_vision.depth_ref
+        with_vision.p = with_vision.p + 0.010 * with_vision.R[:, 2]  # 10 mm deeper, vision recent
+        for k in (1, 2):  # the first range starts the clock, the second is 10 ms after it
+            with_vision.t_ns = with_vision.last_vision_ns = s.t_ns + k * 10_000_000
+            f.update_tof(with_vision, _range(f.c, R, with_vision.p))
+        assert with_vision.counts.get("updates:depth_anchor", 0) == 0
+        if sigma > 0:  # 10 ms of a 20 s running mean: 1/2000 of the way to the depth
+            step = (with_vision.depth_ref - ref0) / (_depth(f, with_vision) - ref0)
+            assert step == pytest.approx(0.01 / f.prm.depth_ref_tau_s, rel=0.05)
+        else:
+            assert with_vision.depth_ref == ref0
+        away = s.copy()
+        away.last_vision_ns = away.last_tip_ns = away.t_ns - 3_000_000_000
+        away.p = away.p + 0.010 * away.R[:, 2]
+        L0 = _depth(f, away)
+        for k in range(1, 101):  # one second of ranges that agree with the deeper tip
+            away.t_ns = s.t_ns + k * 10_000_000
+            f.update_tof(away, _range(f.c, R, away.p))
+        moved[sigma] = L0 - _depth(f, away)
+        assert away.counts.get("updates:depth_anchor", 0) == (99 if sigma > 0 else 0)  # the first starts the clock
+    assert abs(moved[0.0]) < 1e-4
+    assert 2e-5 < moved[5.0] < moved[1.0], moved
