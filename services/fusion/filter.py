@@ -61,7 +61,7 @@ class State:
     __slots__ = (
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "accel_n", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
-        "t_init_ns", "tof_last", "depth_ref", "rest", "tip_held", "f_corr", "f_corr_ns", "acc", "acc_bin", "acc_t",
+        "t_init_ns", "tof_last", "depth_ref", "depth_var", "rest", "tip_held", "f_corr", "f_corr_ns", "acc", "acc_bin", "acc_t",
     )  # fmt: skip
     # arrays a copy shares with its original: the filter replaces them, never changes them in place
     SHARED = ("w_imu", "f_imu", "f_corr")
@@ -72,7 +72,7 @@ class State:
         s.t_ns, s.brho, s.gyro_n, s.t_init_ns = self.t_ns, self.brho, self.gyro_n, self.t_init_ns
         s.accel_n, s.last_tip_ns, s.last_vision_ns = self.accel_n, self.last_tip_ns, self.last_vision_ns
         s.vis_reject_run, s.reacq, s.tof_last = self.vis_reject_run, self.reacq, self.tof_last
-        s.depth_ref = self.depth_ref
+        s.depth_ref, s.depth_var = self.depth_ref, self.depth_var
         s.tip_held, s.w_imu, s.f_imu = self.tip_held, self.w_imu, self.f_imu
         s.f_corr, s.f_corr_ns = self.f_corr, self.f_corr_ns
         s.acc, s.acc_bin, s.acc_t = self.acc.copy(), self.acc_bin, self.acc_t
@@ -197,6 +197,7 @@ class TrackingFilter:
         s.ba = np.zeros(3)
         s.brho = 0.0
         s.depth_ref = float(depth_m)
+        s.depth_var = (p.depth_anchor_sigma_mm * 1e-3) ** 2  # the spread before vision showed one
         d = np.empty(N)
         d[IP] = (p.init_position_mm * 1e-3) ** 2
         d[IV] = p.init_velocity_mps**2
@@ -518,11 +519,16 @@ class TrackingFilter:
         u = s.R[:, 2]
         L = float(u @ (s.p - self.rcm))
         if self.vision and s.t_ns - s.last_vision_ns <= self._brho_window_ns:
-            s.depth_ref += min(1.0, dt_s / prm.depth_ref_tau_s) * (L - s.depth_ref)
+            a = min(1.0, dt_s / prm.depth_ref_tau_s)
+            dev = L - s.depth_ref
+            s.depth_ref += a * dev
+            if prm.depth_anchor_learn_spread:
+                s.depth_var += a * (dev * dev - s.depth_var)
             return
         H = np.zeros((1, N))
         H[0, IP] = u
-        r_var = np.array([(prm.depth_anchor_sigma_mm * 1e-3) ** 2 * prm.depth_anchor_tau_s / dt_s])
+        var = max(s.depth_var, (prm.depth_anchor_sigma_min_mm * 1e-3) ** 2)
+        r_var = np.array([var * prm.depth_anchor_tau_s / dt_s])
         self._update(s, H, np.array([s.depth_ref - L]), r_var, math.inf, "depth_anchor")
 
     def _tip_disagrees_with_tof(self, s: State, u_c: np.ndarray, d: np.ndarray) -> bool:

@@ -24,7 +24,7 @@ _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
 _POSITIVE = (
     "tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_bin_ms", "rest_tau_ms", "rest_chunk_ms", "tip_confirm_ms",
     "tip_confirm_mm", "accel_map_sigma_deg", "accel_map_sigma_mm", "accel_map_bin_ms", "accel_map_every_ms", *_GATES,
-    "depth_anchor_tau_s", "depth_ref_tau_s",
+    "depth_anchor_tau_s", "depth_ref_tau_s", "depth_anchor_sigma_min_mm", "start_depth_mm",
 )  # fmt: skip
 MAX_HISTORY_MS = 120_000.0  # the rewind history lives in memory: a snapshot per gyro sample
 
@@ -137,6 +137,11 @@ class Params:
     depth_anchor_sigma_mm: float = 5.0
     depth_anchor_tau_s: float = 5.0
     depth_ref_tau_s: float = 20.0
+    # with vision the pull's sigma is learnt: the depth's spread about the working depth (RMS
+    # over depth_ref_tau_s), not below depth_anchor_sigma_min_mm; depth_anchor_sigma_mm is the
+    # spread assumed until vision has shown one (and throughout without vision)
+    depth_anchor_learn_spread: bool = True
+    depth_anchor_sigma_min_mm: float = 1.0
     # The accelerometer's pose-locked error (its reading turned by a fraction of a degree that
     # depends on the pose, the same on every pass) learnt as the ToF's is (tof_map.py): the
     # gravity update's residual, recorded while b_rho is free (vision tips) and |f| is within
@@ -185,6 +190,9 @@ class Params:
     # restart the filter within this long: depth and inclination stay on display through a long
     # loss of view; 0 waits for vision
     restart_without_vision_ms: float = 1000.0
+    # the depth a start without vision assumes, and then holds as the working depth (the paper's
+    # operators kept 130-150 mm): the range alone cannot tell it from the heading
+    start_depth_mm: float = 140.0
     # re-acquisition: this many frames in a row that pass the trocar gate but fail the axis'
     # innovation gate, and agree with each other (the same heading/position correction within
     # the tolerances below, over at most the window), move the state onto vision directly
@@ -216,6 +224,11 @@ class Params:
         for name in _POSITIVE:
             if not getattr(self, name) > 0:
                 raise ParamsError(f"fusion parameter {name}: must be > 0 (got {getattr(self, name)})")
+        if not self.depth_min_m * 1e3 <= self.start_depth_mm <= self.depth_max_m * 1e3:
+            raise ParamsError(
+                f"fusion parameter start_depth_mm: must lie within depth_min_m and depth_max_m "
+                f"({self.depth_min_m * 1e3:g}-{self.depth_max_m * 1e3:g} mm, got {self.start_depth_mm:g})"
+            )
         if self.history_ms > MAX_HISTORY_MS:  # a snapshot per gyro sample is kept for that long
             raise ParamsError(f"fusion parameter history_ms: at most {MAX_HISTORY_MS:g} (got {self.history_ms:g})")
         if self.max_age_ms > self.history_ms:

@@ -862,3 +862,33 @@ def test_without_vision_the_depth_is_drawn_to_the_working_depth_and_with_vision_
         assert away.counts.get("updates:depth_anchor", 0) == (99 if sigma > 0 else 0)  # the first starts the clock
     assert abs(moved[0.0]) < 1e-4
     assert 2e-5 < moved[5.0] < moved[1.0], moved
+
+
+def test_the_pull_to_the_working_depth_is_as_tight_as_the_depth_was_steady_with_vision():
+    """`depth_anchor_learn_spread`: while vision comes the pull's sigma follows the depth's
+    spread about the working depth (floored at `depth_anchor_sigma_min_mm`), so a depth held
+    still is then held hard, a depth that wandered only loosely; unlearnt, the sigma stays
+    `depth_anchor_sigma_mm`."""
+    moved, spread = {}, {}
+    for learn, wobble in ((False, 0.0), (True, 0.0), (True, 0.010)):
+        prm = Params(depth_anchor_learn_spread=learn, depth_ref_tau_s=2.0)
+        f, s, R, p = _run_static(3.0, np.zeros(3), params=prm)
+        w = s.copy()
+        u, L0 = w.R[:, 2], _depth(f, w)
+        for k in range(1, 2001):  # 20 s of ranges (ten running-mean times) with vision recent
+            w.t_ns = w.last_vision_ns = s.t_ns + k * 10_000_000
+            w.p = f.rcm + (L0 + wobble * math.sin(2 * math.pi * k / 50)) * u
+            f.update_tof(w, _range(f.c, R, w.p))
+        spread[learn, wobble] = math.sqrt(w.depth_var) * 1e3
+        away = w.copy()
+        away.last_vision_ns = away.last_tip_ns = away.t_ns - 3_000_000_000
+        away.p = f.rcm + (away.depth_ref + 0.010) * u
+        La = _depth(f, away)
+        for k in range(1, 101):  # one second of ranges that agree with a tip 10 mm deeper
+            away.t_ns = w.t_ns + k * 10_000_000
+            f.update_tof(away, _range(f.c, R, away.p))
+        moved[learn, wobble] = La - _depth(f, away)
+    assert spread[False, 0.0] == pytest.approx(5.0)  # the parameter's, untouched
+    assert spread[True, 0.0] < 0.5  # the depth held still: the spread decayed
+    assert spread[True, 0.010] == pytest.approx(10 / math.sqrt(2), rel=0.3)  # a sine's RMS
+    assert moved[True, 0.0] > 1.5 * moved[False, 0.0] > 1.5 * moved[True, 0.010] > 0, moved
