@@ -449,12 +449,12 @@ class FusionRunner:
 
     def _init_without_vision(self, t: int) -> None:
         """Without vision nothing observes heading: start from the accelerometer's inclination
-        with the azimuth of the ToF target plane's normal, at a mid working depth."""
+        with the azimuth of the ToF target plane's normal, at the working depth `start_depth_mm`."""
         tr = self._track
         c = self.calib
         u = shaft_from_tilt(tr.f_last, c.R_tool_imu, c.tof_plane_normal_base)
         R = initial_rotation(u, tr.f_last, c.R_tool_imu)
-        s = self.filt.new_state(t, R, 0.14, tr.f_last)
+        s = self.filt.new_state(t, R, self.params.start_depth_mm * 1e-3, tr.f_last)
         s.P[0:3, 0:3] *= 100.0
         s.P[6:9, 6:9] *= 25.0
         if self.filt.vision:  # a restart after a reset while the view was lost: the diagnostics say so

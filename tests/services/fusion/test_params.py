@@ -35,6 +35,9 @@ from tiplog.mcap_io import McapWriter
         ("tip_confirm_ms: 0", ("tip_confirm_ms", "> 0")),
         ("tip_confirm_chi2: -1", ("tip_confirm_chi2", ">= 0")),
         ("rest_bias: 1", ("rest_bias", "true or false")),
+        ("start_depth_mm: 500", ("start_depth_mm", "depth_min_m", "20-400 mm", "500")),
+        ("depth_anchor_sigma_min_mm: 0", ("depth_anchor_sigma_min_mm", "> 0")),
+        ("depth_anchor_learn_spread: 1", ("depth_anchor_learn_spread", "true or false")),
     ],
 )
 def test_a_bad_value_is_refused_by_name(tmp_path, text, needles):

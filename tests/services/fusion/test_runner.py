@@ -289,3 +289,23 @@ def test_vision_before_the_device_streams_starts_sane(session):
     err_mm = np.linalg.norm(p - truth, axis=1) * 1e3
     assert err_mm.max() < 30.0, (err_mm.max(), r.diagnostics()["resets"])
     assert r.diagnostics()["resets"] == 0
+
+
+def test_a_start_without_vision_takes_the_working_depth_it_is_given(session):
+    """Without vision the range cannot tell depth from heading: the filter starts at, and then
+    holds, the working depth `start_depth_mm` (140 mm unless told)."""
+    msgs, calib, _ = session
+    blind = [e for e in msgs if e[0] != "vision/observation"]
+    depth = {}
+    for mm in (140.0, 170.0):
+        r = FusionRunner(calib, Params(start_depth_mm=mm), sensors=frozenset({"imu", "tof"}))
+        out = []
+        for topic, msg, arr in blind:
+            r.feed(topic, msg, arr)
+        out += r.finish()
+        _, p = _arrays(out)
+        depth[mm] = np.linalg.norm(p - calib.rcm_base_m, axis=1) * 1e3
+    for mm, d in depth.items():
+        assert abs(d[0] - mm) < 1.0, (mm, d[0])
+        assert abs(np.median(d) - mm) < 10.0, (mm, np.median(d))  # the working depth holds it
+    assert np.median(depth[170.0]) - np.median(depth[140.0]) > 20.0
