@@ -1,7 +1,9 @@
 """The live fusion loop: bus callbacks only stamp and enqueue; one worker thread feeds the
 `FusionRunner`, advances it to the present and publishes what it returns: fusion/state
 (`output_delay_ms` behind, for display) and fusion/state_settled (`max_age_ms` behind, every late
-frame applied at its time: what `tiplog fusion run` writes, for archives).
+frame applied at its time: what `tiplog fusion run` writes, for archives). Before it subscribes
+it warms the compiled kernels (`services.fusion.warmup`), so the first samples do not queue
+behind their loading.
 
 Clocks. Every input's header stamp is on the gateway's host clock; the runner wants arrival
 times on that same clock. Live on one host the two agree; a replayed recording carries its
@@ -28,6 +30,7 @@ from services.fusion.messages import to_fusion_state
 from services.fusion.params import Params
 from services.fusion.publish import to_diagnostics, to_frame_transforms
 from services.fusion.runner import FusionRunner
+from services.fusion.warmup import warm_up
 from tiplog.bus import Bus, SampleInfo
 from tiplog.calibration import Calibration
 from tiplog.clock import now_ns
@@ -56,7 +59,10 @@ class LiveFusion:
         input_log_file: str | None = None,
         poll_s: float = 0.005,
         clock: Callable[[], int] = now_ns,
+        warm: bool = True,
     ):
+        if warm:
+            _warm(calibration, params, sensors)
         self.runner = FusionRunner(calibration, params, sensors, output="both")
         self._clock = clock
         self._poll_s = poll_s
@@ -237,6 +243,17 @@ class LiveFusion:
             inputs=self.inputs,
             queue_drops=self.queue_drops,
         )
+
+
+def _warm(calibration: Calibration, params: Params, sensors: frozenset[str]) -> None:
+    """The compiled kernels loaded before the first subscription (`services.fusion.warmup`);
+    a calibration it cannot build a session from costs only the first samples' delay."""
+    try:
+        diag = warm_up(calibration, params, sensors)
+    except Exception as e:  # never a reason not to start
+        log.warning("filter warm-up skipped (%s): the first samples will wait for the compiled kernels", e)
+        return
+    log.info("filter kernels ready in %.1f s", diag["warm_up_s"])
 
 
 def _finite(s: Any) -> bool:
