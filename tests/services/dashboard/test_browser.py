@@ -125,6 +125,10 @@ def test_recorder_controls_with_operator_token(browser, system):
         page.wait_for_function("document.getElementById('rec-state').textContent === 'idle'", timeout=15_000)
     finally:
         ctx.close()
+        # Left recording by a failure above, the module's system would fail the next test too.
+        with system.client(OPERATOR_TOKEN) as c:
+            if c.get("/api/recorder").json()["status"]["state"] == "RECORDER_STATE_RECORDING":
+                c.post("/api/recorder/stop", json={"reason": "test cleanup"})
     labels = {m.get("label", "") for name, m in read_metadata(path).items() if name.startswith("event_")}
     assert "first incision" in labels
     assert any(lb.startswith("dashboard: start by operator") for lb in labels)
