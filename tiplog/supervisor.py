@@ -126,12 +126,21 @@ class Supervisor:
     def stop(self, grace_s: float = 5.0) -> None:
         """SIGTERM every running service, SIGKILL what is left after `grace_s`: first those
         not marked `stop_last`, then, once they have exited, the rest."""
-        for last in (False, True):
-            self._stop_group([c for c in self.children if c.stop_last == last], grace_s)
-        for c in self.children:
+        first = [c for c in self.children if not c.stop_last]
+        last = [c for c in self.children if c.stop_last]
+        self._stop_group(first, grace_s)
+        self._mark_stopped(first)
+        if last and first:  # while the last (the recorder) still runs, so that it records the stop
+            self.report(f"{', '.join(c.name for c in first)} stopped; stopping {', '.join(c.name for c in last)}")
+        self._stop_group(last, grace_s)
+        self._mark_stopped(last)
+        self.report("stopped")
+
+    @staticmethod
+    def _mark_stopped(children: list[Child]) -> None:
+        for c in children:
             c.state = R.SERVICE_RUN_STATE_STOPPED
             c.proc = None
-        self.report("stopped")
 
     @staticmethod
     def _stop_group(children: list[Child], grace_s: float) -> None:

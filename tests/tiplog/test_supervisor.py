@@ -122,7 +122,13 @@ def test_stop_last_waits_for_the_others_to_exit(tmp_path):
         Child("recorder", on_sigterm_note("recorder", log, 0.0), stop_last=True),
         Child("fusion", on_sigterm_note("fusion", log, 0.5)),
     ]
-    sup = Supervisor(children, clock=Clock())
+    seen = []  # (event, states, what had exited) at each report
+
+    def publish(st):
+        done = (tmp_path / "order").read_text().split() if (tmp_path / "order").exists() else []
+        seen.append((st.event, {r.service: r.state for r in st.services}, done))
+
+    sup = Supervisor(children, publish=publish, clock=Clock())
     sup.poll()
     for name in ("recorder", "fusion"):  # both handlers installed before the stop
         for _ in range(300):
@@ -132,3 +138,10 @@ def test_stop_last_waits_for_the_others_to_exit(tmp_path):
     sup.stop(grace_s=10)
     assert (tmp_path / "order").read_text().split() == ["fusion", "recorder"]
     assert all(c.state == R.SERVICE_RUN_STATE_STOPPED for c in children)
+    # the recorder, still running, is told that the others have stopped, so its file says so
+    between = [s for s in seen if s[0] == "fusion stopped; stopping recorder"]
+    assert len(between) == 1
+    _, states, done = between[0]
+    assert states == {"recorder": R.SERVICE_RUN_STATE_RUNNING, "fusion": R.SERVICE_RUN_STATE_STOPPED}
+    assert done == ["fusion"]
+    assert seen[-1][0] == "stopped"
