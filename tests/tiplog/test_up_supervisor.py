@@ -15,7 +15,7 @@ from services.bench.app import BenchConfig, write_calibration
 from tests.conftest import ROOT, free_port
 from tiplog.bus import Bus, BusConfig
 from tiplog.mcap_io import read_summary
-from tiplog.v1 import system_pb2
+from tiplog.v1 import recorder_pb2, system_pb2
 
 pytestmark = pytest.mark.slow
 R = system_pb2.ServiceRunState
@@ -39,12 +39,18 @@ def test_kill_9_is_restarted_reported_and_the_recording_stays_valid(tmp_path):
         text=True,
     )
     statuses: list[system_pb2.SupervisorStatus] = []
+    supervisor_written = threading.Event()  # the recording holds at least one supervisor status
     cv = threading.Condition()
 
     def on_status(msg, _info) -> None:
         with cv:
             statuses.append(msg)
             cv.notify_all()
+
+    def on_recorder(msg, _info) -> None:
+        counts = msg.topics.get("system/supervisor")
+        if msg.state == recorder_pb2.RECORDER_STATE_RECORDING and counts is not None and counts.written > 0:
+            supervisor_written.set()
 
     def wait_for(pred, timeout=60.0):
         with cv:
@@ -57,6 +63,7 @@ def test_kill_9_is_restarted_reported_and_the_recording_stays_valid(tmp_path):
     try:
         with Bus(BusConfig(mode="client", connect=[ep], listen=[])) as bus:
             bus.subscribe("system/supervisor", on_status)
+            bus.subscribe("recorder/status", on_recorder)
             first = wait_for(lambda s: run_of(s, "fusion").state == R.SERVICE_RUN_STATE_RUNNING)
             pid = run_of(first, "fusion").pid
             os.kill(pid, signal.SIGKILL)
@@ -65,6 +72,8 @@ def test_kill_9_is_restarted_reported_and_the_recording_stays_valid(tmp_path):
             assert run_of(died, "recorder").state == R.SERVICE_RUN_STATE_RUNNING  # the others keep running
             back = wait_for(lambda s: run_of(s, "fusion").restarts == 1 and run_of(s, "fusion").pid not in (0, pid))
             assert run_of(back, "fusion").state == R.SERVICE_RUN_STATE_RUNNING
+            # Ctrl-C only once the recorder, which may start slowly on a loaded machine, is recording
+            assert supervisor_written.wait(60), "the recorder never wrote a supervisor status"
         up.send_signal(signal.SIGINT)
         out, err = up.communicate(timeout=30)
         assert up.returncode == 0, err
