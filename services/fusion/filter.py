@@ -350,7 +350,7 @@ class TrackingFilter:
     def _gain(self, s: State) -> tuple[int, int]:
         """The error states an update gives gain by default (`kernels.update`'s lo, hi): all but
         a held b_rho."""
-        return 0, kernels.gain_hi(not self.brho_free(s))
+        return 0, N if self.brho_free(s) else N - 1  # `kernels.gain_hi`, without a compiled call
 
     def _update(
         self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
@@ -516,8 +516,7 @@ class TrackingFilter:
         prm = self.prm
         if prm.depth_anchor_sigma_mm <= 0.0 or not 0.0 < dt_s < 1.0:
             return
-        u = s.R[:, 2]
-        L = float(u @ (s.p - self.rcm))
+        L = kernels.shaft_depth(s.R, s.p, self.rcm)
         if self.vision and s.t_ns - s.last_vision_ns <= self._brho_window_ns:
             a = min(1.0, dt_s / prm.depth_ref_tau_s)
             dev = L - s.depth_ref
@@ -526,7 +525,7 @@ class TrackingFilter:
                 s.depth_var += a * (dev * dev - s.depth_var)
             return
         H = np.zeros((1, N))
-        H[0, IP] = u
+        H[0, IP] = s.R[:, 2]
         var = max(s.depth_var, (prm.depth_anchor_sigma_min_mm * 1e-3) ** 2)
         r_var = np.array([var * prm.depth_anchor_tau_s / dt_s])
         self._update(s, H, np.array([s.depth_ref - L]), r_var, math.inf, "depth_anchor")
@@ -554,11 +553,10 @@ class TrackingFilter:
 
     def _clamp_depth(self, s: State) -> None:
         """The tip back to the physical insertion range along the shaft (depth_min/max_m)."""
-        u = s.R[:, 2]
-        L = float(u @ (s.p - self.rcm))
+        L = kernels.shaft_depth(s.R, s.p, self.rcm)
         Lc = min(max(L, self.prm.depth_min_m), self.prm.depth_max_m)
         if Lc != L:
-            s.p = s.p + (Lc - L) * u
+            s.p = s.p + (Lc - L) * s.R[:, 2]
             _bump(s.counts, "clamped:depth")
 
     def update_vision(self, s: State, obs: dict) -> bool:

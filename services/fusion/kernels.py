@@ -747,6 +747,41 @@ def sample_fields(R: np.ndarray, p: np.ndarray, P: np.ndarray, rcm: np.ndarray, 
 
 
 @njit(cache=True)
+def shaft_depth(R: np.ndarray, p: np.ndarray, rcm: np.ndarray) -> float:
+    """The tip's depth along the shaft R[:, 2] from the RCM, u . (p - rcm) [m] (numpy's
+    `u @ (p - rcm)` to the bit, in one call instead of three array operations)."""
+    return R[0, 2] * (p[0] - rcm[0]) + R[1, 2] * (p[1] - rcm[1]) + R[2, 2] * (p[2] - rcm[2])
+
+
+@njit(cache=True)
+def sample_row(
+    R: np.ndarray, p: np.ndarray, v: np.ndarray, P: np.ndarray, bg: np.ndarray, ba: np.ndarray, rcm: np.ndarray,
+    neutral: np.ndarray, only_finite: bool,
+) -> np.ndarray:  # fmt: skip
+    """A published sample's arrays in one (26,) row, so that it is made in one call: p [0:3],
+    v [3:6], the quaternion [6:10], the shaft direction R[:, 2] [10:13], bg [13:16], ba [16:19],
+    the tip's 1-sigma [19:22], then depth, tilt, roll and the attitude sigma [22:26]
+    (`sample_fields`). With only_finite, an empty row for a state that is not `finite`."""
+    if only_finite and not finite(p, R, P):
+        return np.empty(0)
+    f = sample_fields(R, p, P, rcm, neutral)
+    out = np.empty(26)
+    for i in range(3):
+        out[i] = p[i]
+        out[3 + i] = v[i]
+        out[10 + i] = R[i, 2]
+        out[13 + i] = bg[i]
+        out[16 + i] = ba[i]
+        out[19 + i] = f[7 + i]
+    for i in range(4):
+        out[6 + i] = f[i]
+    for i in range(3):
+        out[22 + i] = f[4 + i]
+    out[25] = f[10]
+    return out
+
+
+@njit(cache=True)
 def transition(
     R: np.ndarray, bg: np.ndarray, ba: np.ndarray, w_imu: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray,
     R_ti: np.ndarray, r_lever_tool: np.ndarray, dt: float, imu: bool,

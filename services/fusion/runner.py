@@ -34,11 +34,17 @@ import numpy as np
 from services.fusion.filter import State, TrackingFilter
 from services.fusion.init import initial_rotation, shaft_from_tilt
 from services.fusion.params import SENSORS, Params, mode_name
-from services.fusion.sample import StateSample, make_sample
+from services.fusion.sample import StateSample, finite_sample
 from tiplog.calibration import Calibration
 
 ALL = SENSORS
 KIND_ORDER = {"gyro": 0, "accel": 1, "tof": 2, "vision": 3}
+# An event's key is one int, (t << T_SHIFT) + (kind order << K_SHIFT) + seq: time order, then
+# kind, then arrival (seq < 2^K_SHIFT, years of messages). One int compares in one step where a
+# (t, kind, seq) tuple took several, and the queue of pending events compares keys at every
+# message.
+T_SHIFT, K_SHIFT = 40, 36
+KEY_BEFORE_ALL = -(1 << 110)  # below every key (the empty start's snapshot)
 OUTPUTS = ("display", "settled", "both")
 TOF_VALID = 1
 __all__ = ["ALL", "FusionRunner", "StateSample"]
@@ -122,21 +128,21 @@ class FusionRunner:
         self.restart_ns = int(p.restart_without_vision_ms * 1e6) if p.restart_without_vision_ms > 0 else None
         self.lat = {k: calibration.latency_ns(k) for k in ("gyro", "accel", "tof", "camera")}
         self._pending: deque[tuple[int, tuple]] = deque()  # (arrival, event) in feed order
-        self._gyro_due: deque[tuple[int, int, tuple]] = deque()  # (cutoff, t, key) to publish
-        self._settle_due: deque[tuple[int, int, tuple]] = deque()  # the same, settled ("both")
+        self._gyro_due: deque[tuple[int, int, int]] = deque()  # (cutoff, t, key) to publish
+        self._settle_due: deque[tuple[int, int, int]] = deque()  # the same, settled ("both")
         self._settled: list[StateSample] = []
         self._last_settled_t = -(1 << 62)
         self._ready: list[tuple] = []  # heap of arrived events not yet processed (ahead of head)
-        self._done_keys: list[tuple] = []  # processed events in key order
+        self._done_keys: list[int] = []  # processed events in key order
         self._done: list[tuple] = []
-        self._last_done: tuple | None = None  # the newest event processed
-        self._last_gyro: tuple | None = None  # ... and gyro event
+        self._last_done: int | None = None  # the key of the newest event processed
+        self._last_gyro: int | None = None  # ... and gyro event
         self._track = _Track()
         self._track.map_mark = (0,) * len(self.filt.maps)
         self._marks = tuple(m.mark for m in self.filt.maps)
         # snapshots after every gyro event, and one of the empty start (a frame captured before
         # the first gyro sample can still be applied at its time)
-        self._snap_keys: list[tuple] = [(-(1 << 62), -1, 0)]
+        self._snap_keys: list[int] = [KEY_BEFORE_ALL]
         self._snaps: list[_Track] = [self._track.copy()]
         self._seq = 0
         self._last_pub_t = -(1 << 62)
@@ -156,12 +162,13 @@ class FusionRunner:
             return
         arrival_ns = max(int(arrival_ns), self._last_arrival)
         self._last_arrival = arrival_ns
-        t = ev[0][0]
+        key = ev[0]
+        t = key >> T_SHIFT
         if arrival_ns - t > self.max_age_ns:
-            self._drop(ev[0][1], "too_old")
+            self._drop(KIND_ORDER[ev[1]], "too_old")
             return
         self._pending.append((arrival_ns, ev))
-        if ev[0][1] == 0:
+        if ev[1] == "gyro":
             self._gyro_due.append((max(t + self.delay_ns, arrival_ns), t, ev[0]))
             if self.output == "both":
                 self._settle_due.append((max(t + self.max_age_ns, arrival_ns), t, ev[0]))
@@ -172,7 +179,8 @@ class FusionRunner:
         self.dropped[key] = self.dropped.get(key, 0) + 1
 
     def _event(self, topic: str, msg: Any) -> tuple | None:
-        """(key, kind, payload) with key = (t, kind order, seq), or None to ignore."""
+        """(key, kind, payload) with key = (t << T_SHIFT) + (kind order << K_SHIFT) + seq, or None
+        to ignore."""
         if topic == "device/gyro":
             w = _v3(msg.rate_radps)
             t = msg.header.stamp_ns - self.lat["gyro"]
@@ -208,7 +216,7 @@ class FusionRunner:
         else:
             return None
         self._seq += 1
-        return ((int(t), KIND_ORDER[kind], self._seq), kind, payload)
+        return ((int(t) << T_SHIFT) + (KIND_ORDER[kind] << K_SHIFT) + self._seq, kind, payload)
 
     # ------------------------------------------------------------------ output
     def advance(self, now_ns: int) -> list[StateSample]:
@@ -242,8 +250,10 @@ class FusionRunner:
         inputs have arrived (none with output="settled", which needs no history)."""
         out = []
         for tr in self._snaps:
-            if tr.state is not None and tr.state.finite():
-                out.append(make_sample(tr.state, self.calib.rcm_base_m, self._neutral(), self.lock_ns))
+            if tr.state is not None:
+                sample = finite_sample(tr.state, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
+                if sample is not None:
+                    out.append(sample)
         return out
 
     def predict(self, now_ns: int) -> StateSample | None:
@@ -253,9 +263,7 @@ class FusionRunner:
             return None
         s = s.copy()
         self.filt.propagate(s, int(now_ns))
-        if not s.finite():
-            return None
-        return make_sample(s, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
+        return finite_sample(s, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
 
     def diagnostics(self) -> dict:
         tr = self._track
@@ -328,8 +336,10 @@ class FusionRunner:
             return  # gyro dropped (too old)
         self._last_settled_t = t_k
         tr = self._snaps[i]
-        if tr.state is not None and tr.state.finite():
-            self._settled.append(make_sample(tr.state, self.calib.rcm_base_m, self._neutral(tr), self.lock_ns))
+        if tr.state is not None:
+            sample = finite_sample(tr.state, self.calib.rcm_base_m, self._neutral(tr), self.lock_ns)
+            if sample is not None:
+                self._settled.append(sample)
 
     def _publish_next(self, out: list[StateSample]) -> None:
         cutoff, t_k, key_k = self._gyro_due.popleft()
@@ -343,15 +353,17 @@ class FusionRunner:
             return  # gyro dropped (too old)
         self._last_pub_t = t_k
         st = self._track.state  # the filter stands at gyro k (its snapshot, if kept, is a copy)
-        if st is not None and st.finite():
-            out.append(make_sample(st, self.calib.rcm_base_m, self._neutral(), self.lock_ns))
+        if st is not None:
+            sample = finite_sample(st, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
+            if sample is not None:
+                out.append(sample)
         if self._keep_history:
             self._prune(t_k - self.history_ns)
 
     def _prune(self, t_min: int) -> None:
-        if self._snap_keys[0][0] >= t_min - self.history_ns // 4:
+        if self._snap_keys[0] >> T_SHIFT >= t_min - self.history_ns // 4:
             return  # prune in batches: deleting from the list head is O(n)
-        k = bisect.bisect_left(self._snap_keys, (t_min,))
+        k = bisect.bisect_left(self._snap_keys, t_min << T_SHIFT)
         if k > 1:
             k -= 1  # keep one snapshot at or before t_min
             del self._snap_keys[:k]
@@ -364,10 +376,12 @@ class FusionRunner:
         key = ev[0]
         i = bisect.bisect_right(self._snap_keys, key) - 1
         if i < 0 or not self._keep_history:  # settled: an input this late is too old (not reached)
-            self._drop(key[1], "older_than_history")
+            self._drop(KIND_ORDER[ev[1]], "older_than_history")
             return
         self.stats["rewinds"] += 1
-        self.stats["max_rewind_ms"] = max(self.stats["max_rewind_ms"], (self._last_done[0] - key[0]) * 1e-6)
+        self.stats["max_rewind_ms"] = max(
+            self.stats["max_rewind_ms"], ((self._last_done >> T_SHIFT) - (key >> T_SHIFT)) * 1e-6
+        )
         snap_key = self._snap_keys[i]
         self._track = self._snaps[i].copy()
         for m, mark in zip(self.filt.maps, self._track.map_mark, strict=True):
@@ -385,7 +399,7 @@ class FusionRunner:
 
     def _process(self, ev: tuple) -> None:
         key, kind, payload = ev
-        t = key[0]
+        t = key >> T_SHIFT
         tr = self._track
         s = tr.state
         f = self.filt

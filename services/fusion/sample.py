@@ -32,21 +32,32 @@ class StateSample:
 
 
 def make_sample(s: State, rcm_base_m: np.ndarray, neutral_u: np.ndarray, lock_ns: int) -> StateSample:
-    f = kernels.sample_fields(s.R, s.p, s.P, rcm_base_m, neutral_u).tolist()
+    return _sample(s, kernels.sample_row(s.R, s.p, s.v, s.P, s.bg, s.ba, rcm_base_m, neutral_u, False), lock_ns)
+
+
+def finite_sample(s: State, rcm_base_m: np.ndarray, neutral_u: np.ndarray, lock_ns: int) -> StateSample | None:
+    """`make_sample`, or None for a state that is not finite (`State.finite`): one compiled call."""
+    row = kernels.sample_row(s.R, s.p, s.v, s.P, s.bg, s.ba, rcm_base_m, neutral_u, True)
+    return _sample(s, row, lock_ns) if len(row) else None
+
+
+def _sample(s: State, row: np.ndarray, lock_ns: int) -> StateSample:
+    # the arrays are views of the row, which is made for this sample and shared with nothing
+    depth, tilt, roll, att = row[22:26].tolist()
     return StateSample(
-        stamp_ns=int(s.t_ns),
-        p_tip_base_m=s.p.copy(),
-        v_tip_base_mps=s.v.copy(),
-        q_base_tool=np.array(f[0:4]),
-        u_base=s.R[:, 2].copy(),
-        depth_m=f[4],
-        tilt_deg=f[5],
-        roll_deg=f[6],
-        gyro_bias_radps=s.bg.copy(),
-        accel_bias_mps2=s.ba.copy(),
-        tof_offset_m=float(s.brho),
-        tip_sigma_m=np.array(f[7:10]),
-        attitude_sigma_deg=f[10],
-        vision_locked=(s.t_ns - s.last_vision_ns) <= lock_ns,
-        last_vision_stamp_ns=int(max(s.last_vision_ns, 0)),
+        int(s.t_ns),
+        row[0:3],
+        row[3:6],
+        row[6:10],
+        row[10:13],
+        depth,
+        tilt,
+        roll,
+        row[13:16],
+        row[16:19],
+        float(s.brho),
+        row[19:22],
+        att,
+        (s.t_ns - s.last_vision_ns) <= lock_ns,
+        int(max(s.last_vision_ns, 0)),
     )
