@@ -165,18 +165,17 @@ class FusionRunner:
         key = ev[0]
         t = key >> T_SHIFT
         if arrival_ns - t > self.max_age_ns:
-            self._drop(KIND_ORDER[ev[1]], "too_old")
+            self._drop(ev[1], "too_old")
             return
         self._pending.append((arrival_ns, ev))
         if ev[1] == "gyro":
-            self._gyro_due.append((max(t + self.delay_ns, arrival_ns), t, ev[0]))
+            self._gyro_due.append((max(t + self.delay_ns, arrival_ns), t, key))
             if self.output == "both":
-                self._settle_due.append((max(t + self.max_age_ns, arrival_ns), t, ev[0]))
+                self._settle_due.append((max(t + self.max_age_ns, arrival_ns), t, key))
 
-    def _drop(self, kind_order: int, reason: str) -> None:
-        name = next(k for k, v in KIND_ORDER.items() if v == kind_order)
-        key = f"{name}:{reason}"
-        self.dropped[key] = self.dropped.get(key, 0) + 1
+    def _drop(self, kind: str, reason: str) -> None:
+        name = f"{kind}:{reason}"
+        self.dropped[name] = self.dropped.get(name, 0) + 1
 
     def _event(self, topic: str, msg: Any) -> tuple | None:
         """(key, kind, payload) with key = (t << T_SHIFT) + (kind order << K_SHIFT) + seq, or None
@@ -248,12 +247,9 @@ class FusionRunner:
         """The kept history (the last history_ms) as the filter now has it, every late
         measurement applied at its time: what the published states converge to once all
         inputs have arrived (none with output="settled", which needs no history)."""
-        out = []
+        out: list[StateSample] = []
         for tr in self._snaps:
-            if tr.state is not None:
-                sample = finite_sample(tr.state, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
-                if sample is not None:
-                    out.append(sample)
+            self._append_sample(out, tr.state)
         return out
 
     def predict(self, now_ns: int) -> StateSample | None:
@@ -263,7 +259,7 @@ class FusionRunner:
             return None
         s = s.copy()
         self.filt.propagate(s, int(now_ns))
-        return finite_sample(s, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
+        return self._sample(s)
 
     def diagnostics(self) -> dict:
         tr = self._track
@@ -299,6 +295,15 @@ class FusionRunner:
     def _neutral(self, tr: _Track | None = None) -> np.ndarray:
         n = (tr or self._track).neutral_u
         return n if n is not None else np.array([0.0, 0.0, -1.0])
+
+    def _sample(self, state: State, tr: _Track | None = None) -> StateSample | None:
+        """The published sample of `state` (neutral shaft of `tr`, default the live track), or
+        None if any of it is not finite."""
+        return finite_sample(state, self.calib.rcm_base_m, self._neutral(tr), self.lock_ns)
+
+    def _append_sample(self, out: list[StateSample], state: State | None, tr: _Track | None = None) -> None:
+        if state is not None and (sample := self._sample(state, tr)) is not None:
+            out.append(sample)
 
     def _run_due(self, now_ns: int | None, out: list[StateSample]) -> None:
         """Both streams' states due by now_ns (None: all), in cutoff order (the display's first
@@ -336,10 +341,7 @@ class FusionRunner:
             return  # gyro dropped (too old)
         self._last_settled_t = t_k
         tr = self._snaps[i]
-        if tr.state is not None:
-            sample = finite_sample(tr.state, self.calib.rcm_base_m, self._neutral(tr), self.lock_ns)
-            if sample is not None:
-                self._settled.append(sample)
+        self._append_sample(self._settled, tr.state, tr)
 
     def _publish_next(self, out: list[StateSample]) -> None:
         cutoff, t_k, key_k = self._gyro_due.popleft()
@@ -352,11 +354,8 @@ class FusionRunner:
         if self._last_gyro != key_k:
             return  # gyro dropped (too old)
         self._last_pub_t = t_k
-        st = self._track.state  # the filter stands at gyro k (its snapshot, if kept, is a copy)
-        if st is not None:
-            sample = finite_sample(st, self.calib.rcm_base_m, self._neutral(), self.lock_ns)
-            if sample is not None:
-                out.append(sample)
+        # the filter stands at gyro k (its snapshot, if kept, is a copy)
+        self._append_sample(out, self._track.state)
         if self._keep_history:
             self._prune(t_k - self.history_ns)
 
@@ -376,7 +375,7 @@ class FusionRunner:
         key = ev[0]
         i = bisect.bisect_right(self._snap_keys, key) - 1
         if i < 0 or not self._keep_history:  # settled: an input this late is too old (not reached)
-            self._drop(KIND_ORDER[ev[1]], "older_than_history")
+            self._drop(ev[1], "older_than_history")
             return
         self.stats["rewinds"] += 1
         self.stats["max_rewind_ms"] = max(
