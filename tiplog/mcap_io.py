@@ -14,7 +14,9 @@ which carry no CRC, are checked against the summary's index of them (`tiplog.mca
 
 from __future__ import annotations
 
+import heapq
 import json
+import struct
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -22,7 +24,11 @@ from pathlib import Path
 from typing import IO, Any
 
 from google.protobuf.message import DecodeError, Message
-from mcap.reader import McapReader, make_reader
+from mcap.data_stream import ReadDataStream
+from mcap.reader import McapReader, SeekingReader, make_reader
+from mcap.records import Chunk
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType
 from mcap.writer import Writer as _Writer
@@ -187,6 +193,65 @@ def reading(path: str | Path | None) -> Iterator[None]:
         raise UserError(note) from None
 
 
+_RECORD = struct.Struct("<BQ")  # a record's opcode and length
+_MESSAGE = struct.Struct("<HIQQ")  # a message's channel id, sequence, log and publish time
+_OP_MESSAGE = 0x05
+
+
+def iter_log_time(reader: McapReader, stream: IO[bytes], topics_: list[str] | None) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) of `topics_` (None: all) in log-time order: exactly what
+    `reader.iter_messages(topics_, log_time_order=True)` yields, in the same order (equal times
+    by the chunk's offset, then the message's place in it), each chunk's CRC checked as the
+    library checks it. About three times faster: the library orders its heap by a Python comparison
+    method and reads each record field by field through a stream object, which took most of
+    the time of reading a session; here the heap holds plain tuples, compared in C, and a
+    chunk's message records are unpacked from its bytes in one call each. A stream that cannot
+    seek, or a file without a summary or chunk index, goes to the library's own reader."""
+    summary = reader.get_summary() if isinstance(reader, SeekingReader) else None
+    if summary is None or not summary.chunk_indexes:
+        yield from reader.iter_messages(topics=topics_, log_time_order=True)
+        return
+    wanted = None if topics_ is None else set(topics_)
+    channels, schemas = summary.channels, summary.schemas
+    # (log time, chunk offset, place in the chunk or -1 for the chunk itself, item): unique keys
+    heap: list[tuple[int, int, int, Any]] = [
+        (ci.message_start_time, ci.chunk_start_offset, -1, ci)
+        for ci in summary.chunk_indexes
+        if wanted is None
+        or not ci.message_index_offsets  # without message indexes: scan it to know
+        or any(channels[c].topic in wanted for c in ci.message_index_offsets)
+    ]
+    heapq.heapify(heap)
+    push, pop = heapq.heappush, heapq.heappop
+    record, message = _RECORD.unpack_from, _MESSAGE.unpack_from
+    while heap:
+        _t, offset, index, item = pop(heap)
+        if index >= 0:
+            yield item
+            continue
+        stream.seek(offset + 1 + 8)  # past the chunk record's opcode and length
+        data_stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(stream)), validate_crc=True)
+        data = data_stream.read(size)
+        pos = 0
+        while pos < size:
+            op, length = record(data, pos)
+            pos += 9
+            end = pos + length
+            if end > size:
+                raise ValueError(f"a record in the chunk at offset {offset} runs past the chunk's end")
+            if op == _OP_MESSAGE:
+                cid, seq, log_time, publish_time = message(data, pos)
+                channel = channels[cid]
+                if wanted is None or channel.topic in wanted:
+                    msg = McapMessage(
+                        channel_id=cid, log_time=log_time, data=data[pos + 22 : end], publish_time=publish_time,
+                        sequence=seq,
+                    )  # fmt: skip
+                    schema = schemas[channel.schema_id] if channel.schema_id else None
+                    push(heap, (log_time, offset, pos, (schema, channel, msg)))
+            pos = end
+
+
 def read_messages(path: str | Path | IO[bytes], topics_: Iterable[str] | None = None) -> Iterator[Record]:
     """Decoded messages in log-time order (all topics, or only `topics_`). A damaged file, or a
     message that does not decode as its schema, is a UserError naming the file."""
@@ -199,7 +264,7 @@ def read_messages(path: str | Path | IO[bytes], topics_: Iterable[str] | None = 
             cache: dict[str, Any] = {}
             factory = DecoderFactory()
             wanted = list(topics_) if topics_ is not None else None
-            for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+            for schema, channel, message in iter_log_time(reader, stream, wanted):
                 dec = _decoder_for(schema.name, schema.data, cache, factory, schema)
                 try:
                     decoded = dec(message.data)
@@ -218,7 +283,7 @@ def raw_messages(path: str | Path, topics_: Iterable[str] | None = None) -> Iter
     """(schema, channel, message) undecoded, in log-time order; a damaged file is a UserError."""
     with open(path, "rb") as f, reading(path):
         wanted = list(topics_) if topics_ is not None else None
-        yield from open_reader(f).iter_messages(topics=wanted, log_time_order=True)
+        yield from iter_log_time(open_reader(f), f, wanted)
 
 
 def topic_spans(path: str | Path, topics_: Iterable[str]) -> dict[str, tuple[int, int]]:

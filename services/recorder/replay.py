@@ -18,7 +18,7 @@ from pathlib import Path
 
 from tiplog import topics
 from tiplog.bus import Bus, Publisher
-from tiplog.mcap_io import open_reader, reading
+from tiplog.mcap_io import iter_log_time, open_reader, reading
 from tiplog.mcap_salvage import Salvage, intact_messages, trailer_problem
 
 log = logging.getLogger(__name__)
@@ -123,7 +123,7 @@ def replay(
         t0 = 0
         t_start = time.monotonic_ns()
         if summary is not None:
-            messages = reader.iter_messages(log_time_order=True)
+            messages = iter_log_time(reader, f, None)
         else:  # cut short: what can be read, in file order (the recorder writes in log-time order)
             f.seek(0)
             rep.salvage = Salvage(source_bytes=Path(path).stat().st_size)

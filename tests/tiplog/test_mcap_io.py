@@ -111,3 +111,78 @@ def test_reading_passes_on_what_the_file_does_not_explain(tmp_path):
     good = _chunked(tmp_path / "good.mcap")
     with pytest.raises(ZeroDivisionError), reading(good):
         1 / 0  # noqa: B018 - a bug, not a damaged file: stays a bug
+
+
+def _shuffled(path, compression, rng):
+    """Two topics over small chunks whose log-time ranges overlap, with equal log times within
+    and across chunks and topics (the recorder logs by arrival, so a file's order is nearly,
+    not exactly, log-time order)."""
+    with McapWriter(path, compression=compression, chunk_size=1024) as w:
+        for k in range(600):
+            t = int(rng.integers(0, 200)) * 1000 + (k // 100) * 50_000
+            topic = "device/gyro" if k % 3 else "device/accel"
+            w.write_raw(topic, "tiplog.v1.Gyro", _gyro(k).SerializeToString(), t, sequence=k)
+    return path
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_log_time_order_is_the_librarys_to_the_last_tie(tmp_path, compression):
+    import numpy as np
+
+    path = _shuffled(tmp_path / "s.mcap", compression, np.random.default_rng(7))
+    chunks = read_summary(path).chunk_indexes
+    assert len(chunks) > 5 and any(
+        a.message_end_time > b.message_start_time for a, b in zip(chunks, chunks[1:], strict=False)
+    )  # the case the order is for: chunks that overlap in time
+
+    def key(schema, channel, message):
+        return channel.topic, message.log_time, message.publish_time, message.sequence, message.data, schema.name
+
+    every = [m.log_time for _s, _c, m in raw_messages(path)]
+    assert every == sorted(every) and len(set(every)) < len(every)  # with ties to order
+    for topics_ in (None, ["device/gyro"], ["device/accel"], ["device/none"]):
+        with open(path, "rb") as f:
+            want = [key(*m) for m in make_reader(f).iter_messages(topics=topics_, log_time_order=True)]
+        got = [key(*m) for m in raw_messages(path, topics_)]
+        assert got == want
+        assert [(r.topic, r.log_time_ns, r.sequence) for r in read_messages(path, topics_)] == [
+            k[:2] + k[3:4] for k in want
+        ]
+
+
+def test_a_file_without_chunks_reads_in_log_time_order_too(tmp_path):
+    from mcap.writer import Writer
+
+    path = tmp_path / "flat.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start()
+        sid = w.register_schema("tiplog.v1.Gyro", "protobuf", b"")
+        cid = w.register_channel("device/gyro", "protobuf", sid)
+        for k, t in enumerate([30, 10, 20, 10]):
+            w.add_message(cid, log_time=t, data=_gyro(k).SerializeToString(), publish_time=t, sequence=k)
+        w.finish()
+    assert [(m.log_time, m.sequence) for _s, _c, m in raw_messages(path)] == [(10, 1), (10, 3), (20, 2), (30, 0)]
+
+
+class _Pipe(io.RawIOBase):
+    """A stream that cannot seek (a pipe): the library reads it from start to end."""
+
+    def __init__(self, data: bytes):
+        self._b = io.BytesIO(data)
+
+    def readable(self):
+        return True
+
+    def seekable(self):
+        return False
+
+    def readinto(self, buf):
+        n = self._b.readinto(buf)
+        return n
+
+
+def test_a_stream_that_cannot_seek_reads_too(tmp_path):
+    path = _chunked(tmp_path / "s.mcap")
+    recs = list(read_messages(io.BufferedReader(_Pipe(path.read_bytes()))))
+    assert [r.message.header.seq for r in recs] == list(range(300))
