@@ -92,9 +92,11 @@ class McapWriter:
     def write(
         self, topic: str, msg: Message, log_time_ns: int, publish_time_ns: int | None = None, sequence: int = 0
     ) -> None:
-        """Append one message; `log_time_ns` is its time on the session's clock."""
+        """Append one message; `log_time_ns` is its time on the session's clock. Map fields are
+        written in key order (protobuf's own order changes from process to process), so the same
+        messages make the same file, byte for byte."""
         cid = self._channel(topic, msg.DESCRIPTOR.full_name, type(msg))
-        self._add(cid, msg.SerializeToString(), log_time_ns, publish_time_ns, sequence)
+        self._add(cid, msg.SerializeToString(deterministic=True), log_time_ns, publish_time_ns, sequence)
 
     def write_raw(
         self,

@@ -186,3 +186,31 @@ def test_a_stream_that_cannot_seek_reads_too(tmp_path):
     path = _chunked(tmp_path / "s.mcap")
     recs = list(read_messages(io.BufferedReader(_Pipe(path.read_bytes()))))
     assert [r.message.header.seq for r in recs] == list(range(300))
+
+
+_WRITE_MAPS = """
+import sys
+from tiplog.mcap_io import McapWriter
+from tiplog.v1 import fusion_pb2
+d = fusion_pb2.FusionDiagnostics(mode="full")
+for k in ("tof", "rcm", "gravity", "vision_tip", "depth_anchor", "rest", "tof_mapped", "vision_axis"):
+    d.updates[k] = len(k)
+    d.innovation_nis[k] = 0.5 * len(k)
+with McapWriter(sys.argv[1]) as w:
+    w.write("fusion/diagnostics", d, 1)
+"""
+
+
+def test_the_same_messages_make_the_same_file_in_every_process(tmp_path):
+    """protobuf orders a map's entries by a hash seeded per process; the files of two runs of
+    `tiplog fusion run` on one input must still be equal byte for byte."""
+    import subprocess
+    import sys
+
+    paths = [tmp_path / f"{k}.mcap" for k in range(3)]
+    for p in paths:
+        subprocess.run([sys.executable, "-c", _WRITE_MAPS, str(p)], check=True)
+    first = paths[0].read_bytes()
+    assert all(p.read_bytes() == first for p in paths[1:])
+    (rec,) = read_messages(paths[0])
+    assert dict(rec.message.updates) == {k: len(k) for k in rec.message.updates} and len(rec.message.updates) == 8
