@@ -132,7 +132,9 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     pipeline = loaded[0]
     camera: list[CameraModel] = []
     rejected: Counter[str] = Counter()
-    counts = {"processed": 0, "accepted": 0, "bad_frames": 0}
+    # frames that came before any camera/info (the service starting ahead of the camera) are not
+    # bad frames: counted apart, so that a status line's "bad frames" means the camera's fault
+    counts = {"processed": 0, "accepted": 0, "bad_frames": 0, "early": 0}
 
     def on_info(msg, _info) -> None:
         try:
@@ -154,8 +156,9 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
 
     def status() -> None:
         log.info(
-            "frames %d, processed %d, accepted %d, dropped stale %d, bad frames %d, undecodable %d, reasons %s",
-            slot.received, counts["processed"], counts["accepted"], slot.dropped_stale, counts["bad_frames"],
+            "frames %d, processed %d, accepted %d, dropped stale %d, before camera/info %d, bad frames %d, "
+            "undecodable %d, reasons %s",
+            slot.received, counts["processed"], counts["accepted"], slot.dropped_stale, counts["early"], counts["bad_frames"],
             sub_img.decode_errors, dict(rejected) or "none",
         )  # fmt: skip
 
@@ -175,7 +178,7 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
             except FrameError as e:
                 with lock:
                     rejected[e.reason] += 1
-                    counts["bad_frames"] += 1
+                    counts["early" if e.reason == "no_camera_info" else "bad_frames"] += 1
                     n = rejected[e.reason]
                 if n <= 5 or n % 100 == 0:
                     log.warning("frame at %d rejected (%d so far): %s", stamp, n, e)
