@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import io
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
@@ -127,8 +128,6 @@ def _shuffled(path, compression, rng):
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
 def test_log_time_order_is_the_librarys_to_the_last_tie(tmp_path, compression):
-    import numpy as np
-
     path = _shuffled(tmp_path / "s.mcap", compression, np.random.default_rng(7))
     chunks = read_summary(path).chunk_indexes
     assert len(chunks) > 5 and any(
@@ -178,8 +177,7 @@ class _Pipe(io.RawIOBase):
         return False
 
     def readinto(self, buf):
-        n = self._b.readinto(buf)
-        return n
+        return self._b.readinto(buf)
 
 
 def test_a_stream_that_cannot_seek_reads_too(tmp_path):
