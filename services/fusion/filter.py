@@ -167,6 +167,10 @@ class TrackingFilter:
                 p.tof_map_window_s,
                 p.tof_map_prior_weight,
                 p.history_ms,
+                p.tof_map_far_sigma_deg,
+                p.tof_map_far_sigma_mm,
+                p.tof_map_far_weight,
+                p.tof_map_mean_weight,
             )
             if p.tof_map and self.tof and self.vision
             else None
@@ -481,7 +485,8 @@ class TrackingFilter:
             # map), so the held variance grows by up to `tof_unmapped_var_factor` there
             unmapped = 1.0
             if tmap is not None:
-                c, weight = tmap.predict(s.t_ns, s.R, s.p, s.brho)
+                prior = tmap.far_prior(s.t_ns, s.R, s.p, s.brho) if self.prm.tof_map_far else s.brho
+                c, weight = tmap.predict(s.t_ns, s.R, s.p, prior)
                 rho += c - s.brho
                 w0 = tmap.prior_weight
                 unmapped = w0 / (weight + w0) if weight + w0 > 0 else 1.0

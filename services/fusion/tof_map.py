@@ -6,8 +6,10 @@ while the junction is in view, but once vision is lost b_rho is held at the valu
 pose and the depth takes the difference between poses. `TofMap` keeps, for the poses visited
 with vision, the range error against the filter's geometric prediction (grouped into short
 bins), and gives for a pose the kernel-weighted mean of the errors recorded near it, shrunk
-towards the held b_rho where few were recorded. It is append-only in time so that a rewind
-only has to cut its tail.
+towards a prior where few were recorded (`far_prior`: the held b_rho near where it was last
+learnt, the errors recorded within the error's correlation further off, their mean over the
+whole window further still). It is append-only in time so that a rewind only has to cut its
+tail.
 
 The accelerometer's reading is turned by a pose-locked error too (0.21 deg across poses, the
 same on every pass): `AccelMap` keeps, for the poses visited with vision, the gravity update's
@@ -34,10 +36,7 @@ class _PoseEntries:
     def __init__(
         self, sigma_deg: float, sigma_mm: float, bin_ms: float, window_s: float, prior_weight: float, dim: int
     ):
-        # |R_i - R|_F^2 ~ 2 theta^2: the orientation part of the distance is theta^2 / sigma^2
-        wr = 1.0 / (2.0 * math.radians(sigma_deg) ** 2)
-        wp = 1.0 / (sigma_mm * 1e-3) ** 2
-        self._wk = np.concatenate((np.full(9, wr), np.full(3, wp)))  # per key component
+        self._wk = self._weights(sigma_deg, sigma_mm)
         self.bin_ns = int(bin_ms * 1e6)
         self.window_ns = int(window_s * 1e9)
         self.prior_weight = float(prior_weight)
@@ -53,9 +52,18 @@ class _PoseEntries:
         self._n = 0
         self._added = 0
         self._sum = np.empty(self.dim)
+        self._columns = [self._K, self._k2, self._e, self._t, self._c]  # what a compaction moves
 
     def __len__(self) -> int:
         return self._n
+
+    @staticmethod
+    def _weights(sigma_deg: float, sigma_mm: float) -> np.ndarray:
+        """A kernel's weight per key component: |R_i - R|_F^2 ~ 2 theta^2, so the orientation
+        part of the distance is theta^2 / sigma^2."""
+        wr = 1.0 / (2.0 * math.radians(sigma_deg) ** 2)
+        wp = 1.0 / (sigma_mm * 1e-3) ** 2
+        return np.concatenate((np.full(9, wr), np.full(3, wp)))
 
     @staticmethod
     def key(R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -65,7 +73,7 @@ class _PoseEntries:
     def _append(self, t_ns: int, key: np.ndarray, e) -> None:
         if self._n == len(self._t):  # full: keep the newest half (nothing grows)
             k = self._keep
-            for a in (self._K, self._k2, self._e, self._t, self._c):
+            for a in self._columns:
                 a[:k] = a[-k:]
             self._n = k
         i = self._n
@@ -102,8 +110,21 @@ class TofMap(_PoseEntries):
         window_s: float,
         prior_weight: float,
         rewind_ms: float = 1500.0,
+        far_sigma_deg: float = 4.0,
+        far_sigma_mm: float = 8.0,
+        far_weight: float = 10.0,
+        mean_weight: float = 200.0,
     ):
         super().__init__(sigma_deg, sigma_mm, bin_ms, window_s, prior_weight, 1)
+        # `far_prior`'s kernel (the error's correlation over the pose), each entry's weighted
+        # square norm under it, and the running sum of the errors (a window's sum in O(1))
+        self._wk_far = self._weights(far_sigma_deg, far_sigma_mm)
+        self._k2_far = np.empty(len(self._t))
+        self._cum = np.empty(len(self._t))
+        self._columns += [self._k2_far, self._cum]
+        self.far_weight = float(far_weight)
+        self.mean_weight = float(mean_weight)
+        self._sum_far = np.empty(1)
         self._pending: list[tuple[int, np.ndarray, float]] = []
         # the samples of the newest bins, as far back as a rewind may go: a rewind into a bin
         # keeps that bin's earlier samples (they are not replayed)
@@ -121,6 +142,12 @@ class TofMap(_PoseEntries):
     def mark(self) -> int:
         """Where the map stands now, for `rewind` (the number of samples added)."""
         return self._added
+
+    def _append(self, t_ns: int, key: np.ndarray, e) -> None:
+        super()._append(t_ns, key, e)
+        i = self._n - 1
+        self._k2_far[i] = self._wk_far @ (key * key)
+        self._cum[i] = (self._cum[i - 1] if i else 0.0) + float(e)
 
     def _flush(self) -> None:
         pend = self._pending
@@ -167,6 +194,34 @@ class TofMap(_PoseEntries):
         first = self._members[j] if j >= 0 else []
         start = int(self._c[n]) - len(first) if first else (int(self._c[n - 1]) if n else 0)
         self.rewind(start + sum(1 for x in first if x[0] <= t_ns))
+
+    def far_prior(self, t_ns: int, R: np.ndarray, p: np.ndarray, brho: float) -> float:
+        """The range error to expect at (R, p) where the map recorded little: what `predict`
+        shrinks its near errors towards while b_rho is held.
+
+        The error is a smooth field over the pose, so b_rho, learnt at the pose of the newest
+        bin, tells it only within the field's correlation of that pose (the far kernel's
+        widths). Beyond, the errors recorded within that correlation of (R, p) tell it, and
+        beyond those, their mean over the window: the field's mean is the best guess at a pose
+        that nothing recorded is near. The errors near (R, p) are shrunk towards that mean as
+        if it were `far_weight` bins, and the mean towards b_rho as if b_rho were `mean_weight`
+        bins, so that a few bins recorded long ago do not outweigh b_rho, learnt over many
+        ranges. b_rho where nothing is recorded."""
+        n = self._n
+        t_lo = int(t_ns - self.window_ns)
+        lo = int(np.searchsorted(self._t[:n], t_lo, side="left"))
+        if lo >= n:
+            return brho
+        wm = self.mean_weight
+        mean = (float(self._cum[n - 1] - self._cum[lo] + self._e[lo, 0]) + wm * brho) / (n - lo + wm)
+        sw = kernels.kernel_mean(
+            self._K, self._k2_far, self._e, self._t, n, t_lo, R, p, self._wk_far, self._sum_far
+        )
+        wf = self.far_weight
+        near = (float(self._sum_far[0]) + wf * mean) / (sw + wf) if sw + wf > 0.0 else mean
+        d = self._K[n - 1] - self.key(R, p)
+        rho = math.exp(-0.5 * float(self._wk_far @ (d * d)))  # the field's correlation with b_rho's pose
+        return rho * brho + (1.0 - rho) * near
 
     def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> tuple[float, float]:
         """(the range error expected at (R, p): the errors recorded near it, shrunk to `prior`;

@@ -565,15 +565,17 @@ def test_held_tof_uses_the_error_learnt_at_this_pose_while_vision_saw_the_tip():
     assert moved[True] < 0.25 * moved[False] and moved[False] > 0.15e-3, moved
 
 
-def _held_tof_matches(f: TrackingFilter, s, r_var: float) -> bool:
+def _held_tof_matches(f: TrackingFilter, s, r_var: float, far: bool = True) -> bool:
     """Whether a held ToF range with no innovation (the state stays, P shrinks) used the
-    measurement variance r_var: P against the Joseph form with b_rho given no gain."""
+    measurement variance r_var: P against the Joseph form with b_rho given no gain. The range
+    is the one the map predicts, shrunk towards its far prior (`far`) or towards b_rho."""
     c = f.c
     H, rho, _ = kernels.tof_jacobian(
         s.R, s.p, s.brho, c.tof_plane_normal_base, c.tof_plane_h_m, c.tof_origin_tool_m, c.tof_beam_tool
     )
     if f.tof_map is not None:
-        rho += f.tof_map.predict(s.t_ns, s.R, s.p, s.brho)[0] - s.brho
+        prior = f.tof_map.far_prior(s.t_ns, s.R, s.p, s.brho) if far else s.brho
+        rho += f.tof_map.predict(s.t_ns, s.R, s.p, prior)[0] - s.brho
     h, P = H[0], s.P.copy()
     assert f.update_tof(s, rho)
     K = P @ h / (h @ P @ h + r_var)
@@ -607,6 +609,11 @@ def test_held_tof_weighs_less_where_the_map_learnt_nothing():
     elsewhere = here.copy()
     elsewhere.R = elsewhere.R @ so3_exp(np.array([0.0, 0.0, math.radians(20.0)]))  # rolled: unseen
     assert f.tof_map.predict(elsewhere.t_ns, elsewhere.R, elsewhere.p, 0.0)[1] < 1e-6
+    # there the range is expected off by the map's far prior (the recorded errors' mean, shrunk
+    # towards b_rho), not by the held b_rho, learnt 20 deg away and here 4 mm off them
+    elsewhere.brho += 0.004
+    assert abs(f.tof_map.far_prior(elsewhere.t_ns, elsewhere.R, elsewhere.p, elsewhere.brho) - elsewhere.brho) > 5e-4
+    assert not _held_tof_matches(f, elsewhere.copy(), held_var * (1 + k), far=False)
     assert _held_tof_matches(f, elsewhere, held_var * (1 + k))
     no_vision = TrackingFilter(f.c, f.prm, frozenset({"imu", "tof"}))
     assert no_vision.tof_map is None

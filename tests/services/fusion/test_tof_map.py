@@ -1,6 +1,6 @@
-"""The ToF's pose-locked error map: what it predicts near and far from recorded poses, its
-shrinkage to the held offset, its window, and that a rewind leaves it as if the discarded
-samples had never come."""
+"""The ToF's pose-locked error map: what it predicts near and far from recorded poses, the
+prior it shrinks to, its window, and that a rewind leaves it as if the discarded samples had
+never come."""
 
 from __future__ import annotations
 
@@ -50,6 +50,35 @@ def test_near_a_recorded_pose_it_gives_that_pose_error_and_far_from_it_the_prior
     assert -0.002 < mid < 0.004
 
 
+def test_where_little_is_recorded_it_expects_b_rho_near_its_pose_the_errors_near_here_or_their_mean():
+    """`far_prior`, the prior `predict` is shrunk to while b_rho is held: b_rho near the pose of
+    the newest bin (where b_rho was last learnt), the errors recorded within the field's
+    correlation (4 deg, 8 mm) of the pose further off (shrunk towards the mean by `far_weight`
+    bins), and their mean over the window where nothing recorded is near (shrunk towards b_rho
+    by `mean_weight` bins)."""
+    m = _map(far_weight=10.0, mean_weight=0.0)
+    assert m.far_prior(0, _roll(0.0), P0, brho=0.006) == 0.006  # nothing recorded
+    t = _fill(m, 0, 2.0, 20.0, 0.004)
+    t = _fill(m, t, 2.0, -20.0, -0.002)
+    t = _fill(m, t, 1.0, 0.0, 0.001)  # the newest bins: where b_rho was last learnt
+    mean = float(m.entries()[2].mean())
+    assert 0.0009 < mean < 0.0011  # 40 bins at 4 mm, 40 at -2 mm, 19 at 1 mm (the 20th still open)
+    assert m.far_prior(t, _roll(0.0), P0, brho=0.006) == pytest.approx(0.006, abs=1e-9)
+    # 40 bins at each of the older poses, shrunk towards the mean as if it were 10 bins
+    assert m.far_prior(t, _roll(20.0), P0, brho=0.006) == pytest.approx((40 * 0.004 + 10 * mean) / 50, rel=1e-4)
+    assert m.far_prior(t, _roll(-20.0), P0, brho=0.006) == pytest.approx((40 * -0.002 + 10 * mean) / 50, rel=1e-4)
+    assert m.far_prior(t, _roll(70.0), P0, brho=0.006) == pytest.approx(mean, rel=1e-9)
+    # within the correlation of b_rho's pose, a blend of b_rho and what is recorded near
+    assert 0.001 < m.far_prior(t, _roll(4.0), P0, brho=0.006) < 0.006
+    # few bins: the mean is shrunk towards b_rho, by as many bins as mean_weight
+    w = _map(mean_weight=99.0)
+    _fill(w, 0, 2.0, 20.0, 0.004)
+    _fill(w, 2_000_000_000, 2.0, -20.0, -0.002)
+    t = _fill(w, 4_000_000_000, 1.0, 0.0, 0.001)
+    n = len(w)
+    assert w.far_prior(t, _roll(70.0), P0, brho=0.006) == pytest.approx((mean * n + 99 * 0.006) / (n + 99), rel=1e-9)
+
+
 def test_entries_older_than_the_window_are_not_used():
     m = _map(window_s=5.0)
     t = _fill(m, 0, 2.0, 0.0, 0.004)
@@ -85,6 +114,9 @@ def test_a_rewind_forgets_exactly_what_came_after_its_mark(cut):
     a = [once.predict(400 * 10_000_000, R, p, 0.0)[0] for R, p in q]
     b = [other.predict(400 * 10_000_000, R, p, 0.0)[0] for R, p in q]
     assert a == b and not np.allclose(a, 0.0)
+    a = [once.far_prior(400 * 10_000_000, R, p + [0.0, 0.0, 0.01], 0.002) for R, p in q]
+    b = [other.far_prior(400 * 10_000_000, R, p + [0.0, 0.0, 0.01], 0.002) for R, p in q]
+    assert a == b and len(set(a)) == len(a)
 
 
 @pytest.mark.parametrize(("last", "kept"), [(283, 284), (123, 120)])
@@ -106,7 +138,7 @@ def test_a_reset_forgets_the_samples_after_a_time(last, kept):
 def test_a_full_map_keeps_what_its_window_needs():
     """Many windows' worth of samples (the map compacts itself many times): a prediction is
     still the kernel mean over exactly the bins within the window."""
-    m = _map(window_s=0.5, prior_weight=0.0)
+    m = _map(window_s=0.5, prior_weight=0.0, mean_weight=0.0)
     rng = np.random.default_rng(5)
     rolls = np.cumsum(rng.normal(size=2000) * 0.2)
     for k, roll in enumerate(rolls):
@@ -127,6 +159,9 @@ def test_a_full_map_keeps_what_its_window_needs():
         num, den = num + w * e, den + w
     assert len(keep) < len(m)  # older bins are kept but not used
     assert m.predict(t, q, P0, 0.0)[0] == pytest.approx(num / den, rel=1e-9)
+    # far from every pose, the far prior is the mean of those bins, from the running sum
+    mean = np.mean([np.mean([0.001 * math.sin(math.radians(r) * 20) for r in rs]) for rs in keep])
+    assert m.far_prior(t, q, P0 + [0.0, 0.0, 0.5], 0.003) == pytest.approx(mean, rel=1e-9, abs=1e-15)
 
 
 def _bin(R: np.ndarray, p: np.ndarray, e, n: int = 4) -> np.ndarray:
