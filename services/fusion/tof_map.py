@@ -214,14 +214,12 @@ class TofMap(_PoseEntries):
             return brho
         wm = self.mean_weight
         mean = (float(self._cum[n - 1] - self._cum[lo] + self._e[lo, 0]) + wm * brho) / (n - lo + wm)
-        sw = kernels.kernel_mean(
-            self._K, self._k2_far, self._e, self._t, n, t_lo, R, p, self._wk_far, self._sum_far
-        )
+        sw = kernels.kernel_mean(self._K, self._k2_far, self._e, self._t, n, t_lo, R, p, self._wk_far, self._sum_far)
         wf = self.far_weight
         near = (float(self._sum_far[0]) + wf * mean) / (sw + wf) if sw + wf > 0.0 else mean
         d = self._K[n - 1] - self.key(R, p)
-        rho = math.exp(-0.5 * float(self._wk_far @ (d * d)))  # the field's correlation with b_rho's pose
-        return rho * brho + (1.0 - rho) * near
+        corr = math.exp(-0.5 * float(self._wk_far @ (d * d)))  # the field's correlation with b_rho's pose
+        return corr * brho + (1.0 - corr) * near
 
     def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> tuple[float, float]:
         """(the range error expected at (R, p): the errors recorded near it, shrunk to `prior`;
