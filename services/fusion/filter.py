@@ -171,6 +171,9 @@ class TrackingFilter:
                 p.tof_map_far_sigma_mm,
                 p.tof_map_far_weight,
                 p.tof_map_mean_weight,
+                p.tof_map_gp_bins,
+                p.tof_map_gp_sigma_mm,
+                p.tof_map_gp_noise_mm,
             )
             if p.tof_map and self.tof and self.vision
             else None

@@ -22,7 +22,7 @@ from tiplog.userio import read_yaml, yaml_number
 SENSORS = frozenset({"imu", "tof", "vision"})
 _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
 _POSITIVE = (
-    "tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_far_sigma_deg", "tof_map_far_sigma_mm", "tof_map_bin_ms",
+    "tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_far_sigma_deg", "tof_map_far_sigma_mm", "tof_map_bin_ms", "tof_map_gp_sigma_mm", "tof_map_gp_noise_mm",
     "rest_tau_ms", "rest_chunk_ms", "tip_confirm_ms", "tip_confirm_mm", "accel_map_sigma_deg", "accel_map_sigma_mm",
     "accel_map_bin_ms", "accel_map_every_ms", *_GATES,
     "depth_anchor_tau_s", "depth_ref_tau_s", "depth_anchor_sigma_min_mm", "start_depth_mm",
@@ -139,6 +139,18 @@ class Params:
     tof_map_far_sigma_mm: float = 8.0
     tof_map_far_weight: float = 10.0
     tof_map_mean_weight: float = 200.0
+    # ... and where the newest tof_map_gp_bins bins (2 s) lie, far_prior is their regression at
+    # the pose, a Gaussian process with the field's correlation (the far widths), its 3 mm and
+    # a bin's noise (3.2 mm white over 5 ranges), about the errors recorded near: b_rho is a
+    # slow average that lags a changing error, and was held where the error went on changing.
+    # Held for a gap, the regression carries on the trend of the path into it. With fewer bins
+    # (the junction seen only briefly) b_rho as above. On tuning seeds 1000-1003 (geometric
+    # means, sweeps / teleop): one frame in three 0.791 / 0.935 -> 0.791 / 0.932, 3 s blackouts
+    # 0.654 / 0.783 -> 0.654 / 0.777, full fusion 0.634 / 0.693 -> 0.634 / 0.692, seed 1002's
+    # teleop3 0.7155 -> 0.7133 (IMU + vision: 0.7103); the rest within 0.003. 0: off
+    tof_map_gp_bins: int = 40
+    tof_map_gp_sigma_mm: float = 3.0
+    tof_map_gp_noise_mm: float = 1.5
     # while b_rho is held the ToF's variance is tof_sigma_held^2 (1 + k w0 / (w + w0)), w the
     # map's kernel weight at the pose and w0 its prior weight: where the map learnt nothing (and
     # with no map, as without vision) the pose-locked error is unmodelled. k = 3 (28 mm per

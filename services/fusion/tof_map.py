@@ -6,9 +6,9 @@ while the junction is in view, but once vision is lost b_rho is held at the valu
 pose and the depth takes the difference between poses. `TofMap` keeps, for the poses visited
 with vision, the range error against the filter's geometric prediction (grouped into short
 bins), and gives for a pose the kernel-weighted mean of the errors recorded near it, shrunk
-towards a prior where few were recorded (`far_prior`: the held b_rho near where it was last
-learnt, the errors recorded within the error's correlation further off, their mean over the
-whole window further still). It is append-only in time so that a rewind only has to cut its
+towards a prior where few were recorded (`far_prior`: near the path the newest bins took, their
+trend, or the held b_rho while there are few; the errors recorded within the error's
+correlation further off, their mean over the whole window further still). It is append-only in time so that a rewind only has to cut its
 tail.
 
 The accelerometer's reading is turned by a pose-locked error too (0.21 deg across poses, the
@@ -53,6 +53,7 @@ class _PoseEntries:
         self._added = 0
         self._sum = np.empty(self.dim)
         self._columns = [self._K, self._k2, self._e, self._t, self._c]  # what a compaction moves
+        self._version = 0  # changes whenever the bins do
 
     def __len__(self) -> int:
         return self._n
@@ -76,6 +77,7 @@ class _PoseEntries:
             for a in self._columns:
                 a[:k] = a[-k:]
             self._n = k
+        self._version += 1
         i = self._n
         self._K[i] = key
         self._k2[i] = self._wk @ (key * key)
@@ -114,6 +116,9 @@ class TofMap(_PoseEntries):
         far_sigma_mm: float = 8.0,
         far_weight: float = 10.0,
         mean_weight: float = 200.0,
+        gp_bins: int = 40,
+        gp_sigma_mm: float = 3.0,
+        gp_noise_mm: float = 1.5,
     ):
         super().__init__(sigma_deg, sigma_mm, bin_ms, window_s, prior_weight, 1)
         # `far_prior`'s kernel (the error's correlation over the pose), each entry's weighted
@@ -125,6 +130,10 @@ class TofMap(_PoseEntries):
         self.far_weight = float(far_weight)
         self.mean_weight = float(mean_weight)
         self._sum_far = np.empty(1)
+        self.gp_bins = int(gp_bins)
+        self.gp_var = (gp_sigma_mm * 1e-3) ** 2
+        self.gp_noise = (gp_noise_mm * 1e-3) ** 2
+        self._gp_cache: tuple | None = None  # (the map's version, the bins' keys, norms, solve)
         self._pending: list[tuple[int, np.ndarray, float]] = []
         # the samples of the newest bins, as far back as a rewind may go: a rewind into a bin
         # keeps that bin's earlier samples (they are not replayed)
@@ -164,6 +173,7 @@ class TofMap(_PoseEntries):
         state's time, which a replayed ToF range shares with the snapshot: time cannot tell.)"""
         if mark >= self._added:
             return
+        self._version += 1
         flushed = self._added - len(self._pending)
         self._added = mark
         if mark > flushed or flushed == 0:
@@ -206,7 +216,11 @@ class TofMap(_PoseEntries):
         that nothing recorded is near. The errors near (R, p) are shrunk towards that mean as
         if it were `far_weight` bins, and the mean towards b_rho as if b_rho were `mean_weight`
         bins, so that a few bins recorded long ago do not outweigh b_rho, learnt over many
-        ranges. b_rho where nothing is recorded."""
+        ranges. b_rho where nothing is recorded.
+
+        Once the window holds `gp_bins` bins, the newest of them stand for b_rho: b_rho is a
+        slow average that lags an error changing along the path, so the error is regressed on
+        those bins instead (`_trend`), about what is recorded near (R, p)."""
         n = self._n
         t_lo = int(t_ns - self.window_ns)
         lo = int(np.searchsorted(self._t[:n], t_lo, side="left"))
@@ -217,9 +231,31 @@ class TofMap(_PoseEntries):
         sw = kernels.kernel_mean(self._K, self._k2_far, self._e, self._t, n, t_lo, R, p, self._wk_far, self._sum_far)
         wf = self.far_weight
         near = (float(self._sum_far[0]) + wf * mean) / (sw + wf) if sw + wf > 0.0 else mean
+        if self.gp_bins > 0 and n - lo >= self.gp_bins:
+            return self._trend(n, R, p, near)
         d = self._K[n - 1] - self.key(R, p)
         corr = math.exp(-0.5 * float(self._wk_far @ (d * d)))  # the field's correlation with b_rho's pose
         return corr * brho + (1.0 - corr) * near
+
+    def _trend(self, n: int, R: np.ndarray, p: np.ndarray, mean: float) -> float:
+        """The error at (R, p) regressed on the newest `gp_bins` bins: a Gaussian process with
+        the field's correlation (the far kernel), standard deviation `gp_sigma` and a bin's
+        noise `gp_noise` about `mean`. Near the path those bins took it follows their trend;
+        far from it, `mean`. The bins' solve is kept until the map changes (while b_rho is
+        held nothing is added, so a gap solves once)."""
+        if self._gp_cache is None or self._gp_cache[0] != self._version:
+            a = n - self.gp_bins
+            K, k2, e = self._K[a:n].copy(), self._k2_far[a:n].copy(), self._e[a:n, 0]
+            d2 = k2[:, None] + k2[None, :] - 2.0 * (K * self._wk_far) @ K.T
+            A = self.gp_var * np.exp(-0.5 * np.maximum(d2, 0.0)) + self.gp_noise * np.eye(len(k2))
+            cf = np.linalg.cholesky(A)
+            sol = np.linalg.solve(cf.T, np.linalg.solve(cf, np.stack((e, np.ones(len(k2))), 1)))
+            self._gp_cache = (self._version, K, k2, sol)
+        _, K, k2, sol = self._gp_cache
+        q = self.key(R, p)
+        d2 = k2 - 2.0 * (K @ (self._wk_far * q)) + float(self._wk_far @ (q * q))
+        ks = self.gp_var * np.exp(-0.5 * np.maximum(d2, 0.0))
+        return mean + float(ks @ sol[:, 0]) - mean * float(ks @ sol[:, 1])
 
     def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> tuple[float, float]:
         """(the range error expected at (R, p): the errors recorded near it, shrunk to `prior`;

@@ -55,8 +55,9 @@ def test_where_little_is_recorded_it_expects_b_rho_near_its_pose_the_errors_near
     the newest bin (where b_rho was last learnt), the errors recorded within the field's
     correlation (4 deg, 8 mm) of the pose further off (shrunk towards the mean by `far_weight`
     bins), and their mean over the window where nothing recorded is near (shrunk towards b_rho
-    by `mean_weight` bins)."""
-    m = _map(far_weight=10.0, mean_weight=0.0)
+    by `mean_weight` bins). Here without the newest bins' trend (`gp_bins` 0), which the next
+    test covers."""
+    m = _map(far_weight=10.0, mean_weight=0.0, gp_bins=0)
     assert m.far_prior(0, _roll(0.0), P0, brho=0.006) == 0.006  # nothing recorded
     t = _fill(m, 0, 2.0, 20.0, 0.004)
     t = _fill(m, t, 2.0, -20.0, -0.002)
@@ -71,12 +72,55 @@ def test_where_little_is_recorded_it_expects_b_rho_near_its_pose_the_errors_near
     # within the correlation of b_rho's pose, a blend of b_rho and what is recorded near
     assert 0.001 < m.far_prior(t, _roll(4.0), P0, brho=0.006) < 0.006
     # few bins: the mean is shrunk towards b_rho, by as many bins as mean_weight
-    w = _map(mean_weight=99.0)
+    w = _map(mean_weight=99.0, gp_bins=0)
     _fill(w, 0, 2.0, 20.0, 0.004)
     _fill(w, 2_000_000_000, 2.0, -20.0, -0.002)
     t = _fill(w, 4_000_000_000, 1.0, 0.0, 0.001)
     n = len(w)
     assert w.far_prior(t, _roll(70.0), P0, brho=0.006) == pytest.approx((mean * n + 99 * 0.006) / (n + 99), rel=1e-9)
+
+
+def _path(m: TofMap, seconds: float, deg_per_s: float, mm_per_deg: float) -> int:
+    """ToF samples at 100 Hz along a turn from roll 0 at deg_per_s, their error growing by
+    mm_per_deg along it; returns the next time."""
+    t = 0
+    for k in range(int(seconds * 100)):
+        roll = deg_per_s * k / 100
+        m.add(t, m.key(_roll(roll), P0), roll * mm_per_deg * 1e-3)
+        t += 10_000_000
+    return t
+
+
+def test_along_a_path_the_held_prior_follows_the_newest_bins_and_their_trend():
+    """With `gp_bins` bins in the window, `far_prior` regresses the error on the newest of them:
+    a turn that took the error from 0 to 3 mm over 3 deg, with b_rho a lagging 1.5 mm, expects
+    the error recorded along the path, and past its end more than the newest bin's; the prior
+    without the trend stays at b_rho. Far from the path, what is recorded near, both."""
+    kw = dict(far_weight=10.0, mean_weight=0.0)
+    m, old = _map(gp_bins=40, **kw), _map(gp_bins=0, **kw)
+    for x in (m, old):
+        t = _path(x, 3.0, 1.0, 1.0)
+    newest = float(m.entries()[2][-1])
+    assert len(m) >= 50 and 0.0028 < newest < 0.003
+    assert m.far_prior(t, _roll(2.0), P0, brho=0.0015) == pytest.approx(0.002, abs=1.5e-4)
+    ahead = m.far_prior(t, _roll(3.5), P0, brho=0.0015)
+    assert newest < ahead < 0.0035
+    for roll in (2.0, 3.5):
+        assert old.far_prior(t, _roll(roll), P0, brho=0.0015) == pytest.approx(0.0015, abs=2e-5)
+    mean = float(m.entries()[2].mean())
+    assert m.far_prior(t, _roll(60.0), P0, brho=0.0015) == pytest.approx(mean, rel=1e-6)
+    assert old.far_prior(t, _roll(60.0), P0, brho=0.0015) == pytest.approx(mean, rel=1e-6)
+    # the regression is solved again whenever the bins change, a rewind too
+    mark = m.mark()
+    for k in range(100):
+        m.add(t + k * 10_000_000, m.key(_roll(3.0), P0), 0.02)
+    assert m.far_prior(t + 10**9, _roll(3.5), P0, brho=0.0015) > 0.005
+    m.rewind(mark)
+    assert m.far_prior(t, _roll(3.5), P0, brho=0.0015) == ahead
+    # fewer bins than gp_bins: the prior without the trend
+    few = _map(gp_bins=100, **kw)
+    t = _path(few, 3.0, 1.0, 1.0)
+    assert few.far_prior(t, _roll(3.5), P0, 0.0015) == old.far_prior(t, _roll(3.5), P0, 0.0015)
 
 
 def test_entries_older_than_the_window_are_not_used():
@@ -104,6 +148,7 @@ def test_a_rewind_forgets_exactly_what_came_after_its_mark(cut):
     for k in range(cut + 1, cut + 50):  # at the poses that will come again, 50 mm off
         roll, dp, _ = poses[k % 400]
         other.add(k * 10_000_000, other.key(_roll(roll), P0 + dp), 0.05)
+    other.far_prior((cut + 50) * 10_000_000, _roll(0.0), P0, 0.002)  # solved with what is then cut
     other.rewind(mark)
     for k in range(cut + 1, 400):
         roll, dp, e = poses[k]
