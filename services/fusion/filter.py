@@ -166,14 +166,14 @@ class TrackingFilter:
                 p.tof_map_bin_ms,
                 p.tof_map_window_s,
                 p.tof_map_prior_weight,
-                p.history_ms,
-                p.tof_map_far_sigma_deg,
-                p.tof_map_far_sigma_mm,
-                p.tof_map_far_weight,
-                p.tof_map_mean_weight,
-                p.tof_map_gp_bins,
-                p.tof_map_gp_sigma_mm,
-                p.tof_map_gp_noise_mm,
+                rewind_ms=p.history_ms,
+                far_sigma_deg=p.tof_map_far_sigma_deg,
+                far_sigma_mm=p.tof_map_far_sigma_mm,
+                far_weight=p.tof_map_far_weight,
+                mean_weight=p.tof_map_mean_weight,
+                gp_bins=p.tof_map_gp_bins,
+                gp_sigma_mm=p.tof_map_gp_sigma_mm,
+                gp_noise_mm=p.tof_map_gp_noise_mm,
             )
             if p.tof_map and self.tof and self.vision
             else None

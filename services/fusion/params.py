@@ -22,8 +22,8 @@ from tiplog.userio import read_yaml, yaml_number
 SENSORS = frozenset({"imu", "tof", "vision"})
 _GATES = ("gate_chi2_1", "gate_chi2_2", "gate_chi2_3", "gate_chi2_4")
 _POSITIVE = (
-    "tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_far_sigma_deg", "tof_map_far_sigma_mm", "tof_map_bin_ms", "tof_map_gp_sigma_mm", "tof_map_gp_noise_mm",
-    "rest_tau_ms", "rest_chunk_ms", "tip_confirm_ms", "tip_confirm_mm", "accel_map_sigma_deg", "accel_map_sigma_mm",
+    "tof_map_sigma_deg", "tof_map_sigma_mm", "tof_map_far_sigma_deg", "tof_map_far_sigma_mm", "tof_map_bin_ms",
+    "tof_map_gp_sigma_mm", "tof_map_gp_noise_mm", "rest_tau_ms", "rest_chunk_ms", "tip_confirm_ms", "tip_confirm_mm", "accel_map_sigma_deg", "accel_map_sigma_mm",
     "accel_map_bin_ms", "accel_map_every_ms", *_GATES,
     "depth_anchor_tau_s", "depth_ref_tau_s", "depth_anchor_sigma_min_mm", "start_depth_mm",
 )  # fmt: skip

@@ -8,8 +8,8 @@ with vision, the range error against the filter's geometric prediction (grouped 
 bins), and gives for a pose the kernel-weighted mean of the errors recorded near it, shrunk
 towards a prior where few were recorded (`far_prior`: near the path the newest bins took, their
 trend, or the held b_rho while there are few; the errors recorded within the error's
-correlation further off, their mean over the whole window further still). It is append-only in time so that a rewind only has to cut its
-tail.
+correlation further off, their mean over the whole window further still). It is append-only
+in time so that a rewind only has to cut its tail.
 
 The accelerometer's reading is turned by a pose-locked error too (0.21 deg across poses, the
 same on every pass): `AccelMap` keeps, for the poses visited with vision, the gravity update's
@@ -246,16 +246,20 @@ class TofMap(_PoseEntries):
         if self._gp_cache is None or self._gp_cache[0] != self._version:
             a = n - self.gp_bins
             K, k2, e = self._K[a:n].copy(), self._k2_far[a:n].copy(), self._e[a:n, 0]
-            d2 = k2[:, None] + k2[None, :] - 2.0 * (K * self._wk_far) @ K.T
-            A = self.gp_var * np.exp(-0.5 * np.maximum(d2, 0.0)) + self.gp_noise * np.eye(len(k2))
+            A = self._gp_cov(K, k2, K, k2) + self.gp_noise * np.eye(len(k2))
             cf = np.linalg.cholesky(A)
             sol = np.linalg.solve(cf.T, np.linalg.solve(cf, np.stack((e, np.ones(len(k2))), 1)))
             self._gp_cache = (self._version, K, k2, sol)
         _, K, k2, sol = self._gp_cache
-        q = self.key(R, p)
-        d2 = k2 - 2.0 * (K @ (self._wk_far * q)) + float(self._wk_far @ (q * q))
-        ks = self.gp_var * np.exp(-0.5 * np.maximum(d2, 0.0))
+        q = self.key(R, p)[None, :]
+        ks = self._gp_cov(K, k2, q, (q * q) @ self._wk_far)[:, 0]
         return mean + float(ks @ sol[:, 0]) - mean * float(ks @ sol[:, 1])
+
+    def _gp_cov(self, K: np.ndarray, k2: np.ndarray, Q: np.ndarray, q2: np.ndarray) -> np.ndarray:
+        """The regression's covariance (len(K), len(Q)) between keys K and keys Q (k2, q2: their
+        square norms under the far kernel W): gp_var exp(-|K_i - Q_j|^2_W / 2)."""
+        d2 = k2[:, None] + q2[None, :] - 2.0 * (K * self._wk_far) @ Q.T
+        return self.gp_var * np.exp(-0.5 * np.maximum(d2, 0.0))
 
     def predict(self, t_ns: int, R: np.ndarray, p: np.ndarray, prior: float) -> tuple[float, float]:
         """(the range error expected at (R, p): the errors recorded near it, shrunk to `prior`;
