@@ -13,8 +13,12 @@ smooths any subset or degradation (`smoothed:blackout10`: what 10 s blackouts co
 The filter's states are the settled ones (what `tiplog fusion run` writes); `--as-live` scores
 the display stream the live service published on fusion/state instead.
 
+`--compare full:imu_vision` adds, per block, the first variant's tip RMSE less the second's with
+a block-bootstrap 95 % interval (`evaluation.paired_rmse_difference`), and a tally of blocks
+won, lost and lost beyond the interval.
+
     python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...]
-        [--calibration FILE] [--shared-blackouts] [--as-live] [--json OUT]
+        [--calibration FILE] [--shared-blackouts] [--as-live] [--compare A:B,...] [--json OUT]
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from services.fusion.evaluation import (
     block_windows,
     coverage_note,
     load_truth,
+    paired_rmse_difference,
     score_continuous,
 )
 from services.fusion.params import Params, ParamsError, parse_sensors
@@ -77,6 +82,13 @@ def main(argv: list[str] | None = None) -> int:
         help="the paper's sixteen blackouts shared over the sessions given (default: sixteen in each)",
     )
     ap.add_argument("--as-live", action="store_true", help="score the display stream (30 ms behind), not the settled")
+    ap.add_argument(
+        "--compare",
+        default="",
+        help="comma list of A:B (variants given in --variants): per block, A's tip RMSE less B's with its "
+        "block-bootstrap 95 %% interval, and a tally of blocks won, lost and lost beyond that interval",
+    )
+    ap.add_argument("--segment-s", type=float, default=2.0, help="--compare's bootstrap segment (default 2 s)")
     ap.add_argument("--json", help="write all results here")
     args = ap.parse_args(argv)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -84,6 +96,13 @@ def main(argv: list[str] | None = None) -> int:
         base, _ = split_variant(v)
         if base not in SUBSETS and base not in DEGRADED:
             ap.error(f"--variants: unknown variant {v!r}")
+    pairs = [tuple(c.strip().split(":", 1)) for c in args.compare.split(",") if c.strip()]
+    for pair in pairs:
+        if len(pair) != 2 or not all(x in variants for x in pair):
+            ap.error(f"--compare: {':'.join(pair)!r} is not A:B with both in --variants")
+    if not args.segment_s > 0:
+        ap.error(f"--segment-s: must be above 0, not {args.segment_s}")
+    args.pairs = pairs
     try:
         return _run(args, variants)
     except (CalibrationError, EvaluationError, ParamsError, UserError, OSError) as e:  # one line, no traceback
@@ -96,6 +115,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
     given = Calibration.load_yaml(args.calibration) if args.calibration else None
     output = "display" if args.as_live else "settled"
     results = []
+    tally = {pair: [0, 0, 0] for pair in args.pairs}  # blocks A won, lost, lost beyond the interval
     counts = [BLACKOUT_COUNT] * len(args.sessions)
     if args.shared_blackouts:
         counts = sessions_blackouts(args.sessions)
@@ -104,6 +124,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
         calib = given if given is not None else Calibration.from_mcap_metadata(read_metadata(path), where=path)
         msgs = list(iter_inputs(Path(path), {}))
         blocks = block_windows(truth.trials)
+        series = {}  # variant -> the scored series of its blocks, for --compare
         for v in variants:
             base, smoothed = split_variant(v)
             use, sensors = variant_inputs(base, msgs, blocks, seed=0, blackouts=n_blackouts)
@@ -116,6 +137,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
             else:
                 est, diag, cpu = run_variant(use, calib, params, sensors, output)
             r = score_continuous(truth, est)
+            series[v] = r["_series"]
             row = {
                 "session": Path(path).name,
                 "variant": v,
@@ -139,9 +161,37 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
                 f"[{blk}] cpu {cpu:.1f} s resets {diag['resets']} reacquired {row['reacquired']}",
                 flush=True,
             )
+        for a, b in args.pairs:
+            rows = compare_blocks(series[a], series[b], args.segment_s)
+            results.append({"session": Path(path).name, "compare": f"{a}:{b}", "blocks": rows})
+            for c in rows:
+                won = c["diff_mm"] < 0
+                t = tally[(a, b)]
+                t[0 if won else 1] += 1
+                t[2] += int(not won and c["resolved"])
+                print(
+                    f"{Path(path).name:<22} {a} - {b} {c['name']:<12} {c['rmse_a_mm']:.4f} - {c['rmse_b_mm']:.4f} = "
+                    f"{c['diff_mm']:+.4f} mm (95 % {c['low_mm']:+.4f} .. {c['high_mm']:+.4f}, "
+                    f"{'resolved' if c['resolved'] else 'within the block bootstrap'})",
+                    flush=True,
+                )
+    for (a, b), (won, lost, beyond) in tally.items():
+        print(
+            f"{a} against {b}: better in {won} of {won + lost} blocks; worse in {lost}, beyond the interval in {beyond}"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
+
+
+def compare_blocks(series_a: list, series_b: list, segment_s: float) -> list[dict]:
+    """Per block (the `_series` of two variants' `score_continuous`): `paired_rmse_difference`
+    of A's tip error against B's, with the block's name."""
+    out = []
+    for (name, t_a, _, _, e_a), (name_b, t_b, _, _, e_b) in zip(series_a, series_b, strict=True):
+        assert name == name_b, (name, name_b)
+        out.append({"name": name, **paired_rmse_difference(t_a, e_a * 1e3, t_b, e_b * 1e3, segment_s)})
+    return out
 
 
 if __name__ == "__main__":

@@ -189,6 +189,49 @@ def score_continuous(truth: Truth, est: Estimate) -> dict[str, Any]:
     return {"protocol": truth.protocol, "pooled": pooled, "blocks": blocks, "_series": series}
 
 
+def paired_rmse_difference(
+    t_a_ns: np.ndarray, err_a_mm: np.ndarray, t_b_ns: np.ndarray, err_b_mm: np.ndarray,
+    segment_s: float = 2.0, draws: int = 2000, level: float = 0.95, seed: int = 0,
+) -> dict[str, float]:  # fmt: skip
+    """Whether estimate a's tip RMSE over a block is really above or below b's, or within what
+    the block's own course of errors leaves open: rmse_a - rmse_b over the samples both
+    estimated (the tip error norms `err_*_mm` at stamps `t_*_ns`), and its `level` interval
+    from a block bootstrap: the samples cut into consecutive `segment_s` segments (the errors
+    are correlated over a second or so: a filter's state error, the pose-locked sensor errors
+    along the path, so single samples are far from independent), the segments drawn with
+    replacement `draws` times, and the difference computed on each draw. `resolved` is 1 where
+    the interval excludes zero (a difference the block shows, not one a different course of
+    the same kind of motion could reverse), else 0. Raises EvaluationError for no common
+    samples or a segment length, draw count or level out of range."""
+    if not segment_s > 0 or draws < 1 or not 0 < level < 1:
+        raise EvaluationError(f"paired_rmse_difference: segment_s {segment_s}, draws {draws}, level {level}")
+    t, ia, ib = np.intersect1d(np.asarray(t_a_ns), np.asarray(t_b_ns), assume_unique=True, return_indices=True)
+    if len(t) == 0:
+        raise EvaluationError("paired_rmse_difference: the two estimates share no sample time")
+    sq_a = np.asarray(err_a_mm, float)[ia] ** 2
+    sq_b = np.asarray(err_b_mm, float)[ib] ** 2
+    seg = ((t - t[0]) // int(segment_s * 1e9)).astype(np.int64)
+    _, seg = np.unique(seg, return_inverse=True)
+    k = int(seg.max()) + 1
+    n = np.bincount(seg, minlength=k).astype(float)
+    ss_a = np.bincount(seg, sq_a, minlength=k)
+    ss_b = np.bincount(seg, sq_b, minlength=k)
+    idx = np.random.default_rng(seed).integers(0, k, size=(draws, k))
+    n_d = n[idx].sum(1)
+    diff_d = np.sqrt(ss_a[idx].sum(1) / n_d) - np.sqrt(ss_b[idx].sum(1) / n_d)
+    lo, hi = np.quantile(diff_d, [(1 - level) / 2, (1 + level) / 2])
+    rmse_a, rmse_b = float(np.sqrt(sq_a.mean())), float(np.sqrt(sq_b.mean()))
+    return {
+        "rmse_a_mm": rmse_a,
+        "rmse_b_mm": rmse_b,
+        "diff_mm": rmse_a - rmse_b,
+        "low_mm": float(lo),
+        "high_mm": float(hi),
+        "resolved": int(lo > 0 or hi < 0),
+        "segments": k,
+    }
+
+
 SCORERS: dict[str, Callable[[Truth, Estimate], dict[str, Any]]] = {
     "sweeps": score_continuous,
     "teleop": score_continuous,
