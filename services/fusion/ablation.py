@@ -236,11 +236,14 @@ def evaluate_variant(
     seed: int = 0,
     series: bool = False,
     blackouts: int = BLACKOUT_COUNT,
+    block_errors: bool = False,
 ) -> dict[str, Any]:
     """One variant on one session (reads the MCAP itself; safe to run in a worker process).
     `calibration`: a calibration YAML, else the session's `calibration_as_calibrated`;
     `series`: keep the scored time series (private `_series`, for plots); `blackouts`: how
-    many for blackout1/3/10 (reported as `blackouts`)."""
+    many for blackout1/3/10 (reported as `blackouts`); `block_errors`: keep each block's
+    scored stamps and tip error norms in mm (private `_block_errors`, {block: (t_ns, err_mm)},
+    for comparing variants block by block with `evaluation.paired_rmse_difference`)."""
     session = Path(session)
     truth = load_truth(session)
     calib = (
@@ -271,6 +274,8 @@ def evaluate_variant(
         out["blackouts"] = int(blackouts)
     if series:
         out["_series"] = r["_series"]
+    if block_errors:
+        out["_block_errors"] = {name: (t, e * 1e3) for name, t, _, _, e in r["_series"]}
     return out
 
 

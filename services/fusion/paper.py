@@ -130,14 +130,16 @@ def _task_variant(d: Path, scen: str, variant: str, calibrated: bool = False) ->
     """One subset or degradation. Blackouts as the paper placed them: its sixteen shared over
     both continuous sessions in proportion to their blocks (`blackout10`), or, the harsher
     reading, sixteen in each session (`blackout10_per_session`)."""
-    from services.fusion.ablation import BLACKOUT_COUNT, PER_SESSION, evaluate_variant, sessions_blackouts
+    from services.fusion.ablation import BLACKOUT_COUNT, PER_SESSION, SUBSETS, evaluate_variant, sessions_blackouts
 
     cal = d / "calibration.yaml" if calibrated else None
     base, per_session = variant.removesuffix(PER_SESSION), variant.endswith(PER_SESSION)
     n = BLACKOUT_COUNT
     if base.startswith("blackout") and not per_session:
         n = sessions_blackouts([d / "sessions" / f"{s}.mcap" for s in CONTINUOUS])[CONTINUOUS.index(scen)]
-    r = evaluate_variant(d / "sessions" / f"{scen}.mcap", base, cal, series=base == "full", blackouts=n)
+    r = evaluate_variant(
+        d / "sessions" / f"{scen}.mcap", base, cal, series=base == "full", blackouts=n, block_errors=base in SUBSETS
+    )
     r["variant"] = variant
     return r
 
@@ -306,7 +308,36 @@ def gather(results: dict[str, Any], errors: dict[str, str], ablations_on: str = 
                 res["dynamic"].setdefault(scen, {})["calibrated"] = r
         elif name.startswith("as_calibrated:"):
             res["dynamic"].setdefault(name.split(":")[1], {})["as_calibrated"] = r
+    _full_against_best(res, results)
     return res
+
+
+def _full_against_best(res: dict[str, Any], results: dict[str, Any]) -> None:
+    """Per block, full fusion against the best other subset there (`subsets.full.block_vs_best`):
+    the difference of their tip RMSE with its block-bootstrap interval
+    (`evaluation.paired_rmse_difference`), from the subsets' private `_block_errors`; nothing
+    where those were not kept (an older report's results)."""
+    from services.fusion.evaluation import paired_rmse_difference
+
+    errors: dict[str, dict[str, tuple]] = {}
+    for name, r in results.items():
+        if name.startswith("ablation:") and "_block_errors" in r:
+            errors.setdefault(name.split(":")[2], {}).update(r["_block_errors"])
+    sub = res["subsets"]
+    if "full" not in errors or "block_rmse_mm" not in sub.get("full", {}):
+        return
+    for block in sub["full"]["block_rmse_mm"]:
+        others = {
+            v: r["block_rmse_mm"][block]
+            for v, r in sub.items()
+            if v != "full" and block in r.get("block_rmse_mm", {}) and block in errors.get(v, {})
+        }
+        if not others or block not in errors["full"]:
+            continue
+        best = min(others, key=others.__getitem__)
+        (t_f, e_f), (t_b, e_b) = errors["full"][block], errors[best][block]
+        d = paired_rmse_difference(t_f, e_f, t_b, e_b)
+        sub["full"].setdefault("block_vs_best", {})[block] = {"against": best, **d}
 
 
 def _session_info(out: Path) -> dict[str, Any]:

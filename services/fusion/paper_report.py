@@ -302,7 +302,8 @@ def subsets_by_block_md(sub: dict[str, Any]) -> list[str]:
         return []
     blocks = list(sub["full"]["block_rmse_mm"])
     lines = ["", "| Block | " + " | ".join(names) + " | best |", "| --- |" + " --- |" * (len(names) + 1)]
-    won, lost = 0, []
+    won, lost, beyond = 0, [], 0
+    vs_best = sub["full"].get("block_vs_best", {})
     for b in blocks:
         vals = {n: sub[n]["block_rmse_mm"].get(b) for n in names}
         scored = {n: v for n, v in vals.items() if v is not None}
@@ -311,10 +312,22 @@ def subsets_by_block_md(sub: dict[str, Any]) -> list[str]:
         if "full" in scored and others and scored["full"] <= min(others.values()):
             won, best = won + 1, "full"  # a tie goes to full fusion
         elif "full" in scored and others:
-            lost.append(f"{b} by {scored['full'] - scored[best]:.3f} mm to {best}")
+            why = ""
+            if b in vs_best and vs_best[b]["against"] == best:
+                c = vs_best[b]
+                beyond += c["resolved"]
+                where = "beyond" if c["resolved"] else "within"
+                why = f" ({where} the block bootstrap's 95 % interval, {c['low_mm']:+.3f} to {c['high_mm']:+.3f} mm)"
+            lost.append(f"{b} by {scored['full'] - scored[best]:.3f} mm to {best}{why}")
         lines.append(f"| {b} | " + " | ".join(_f(vals[n], 3) for n in names) + f" | {best} |")
     verdict = f"Full fusion is the best combination in {won} of {len(blocks)} blocks (the paper: all seven)"
     lines.append("\n" + verdict + (f"; it loses {', '.join(lost)}." if lost else "."))
+    if vs_best:
+        lines.append(
+            f"A subset is better than full fusion beyond the 95 % interval of a block bootstrap (the block's 2 s "
+            f"segments drawn with replacement) in {beyond} of {len(blocks)} blocks; a loss within it rests on a few "
+            "stretches of the block that another recording of the same motion need not repeat."
+        )
     return lines
 
 

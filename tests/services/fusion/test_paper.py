@@ -90,6 +90,43 @@ def test_the_subsets_are_compared_block_by_block():
     assert "best combination" not in "\n".join(ablation_md(gather(results, {})))
 
 
+def test_a_loss_says_whether_it_is_beyond_the_block_bootstrap():
+    import numpy as np
+
+    t = np.arange(0, 96_000, 5, dtype=np.int64) * 1_000_000  # a scored block at 200 Hz
+    base = 0.7 + 0.2 * np.sin(t * 1e-9)
+    burst = base + 4.0 * ((t >= 40 * 10**9) & (t < 40 * 10**9 + 600 * 10**6))  # one 0.6 s stretch worse
+
+    def row(errors):
+        blocks = [{"name": n, "tip_rmse_mm": float(np.sqrt(np.mean(e**2)))} for n, e in errors.items()]
+        rmse = float(np.mean([b["tip_rmse_mm"] for b in blocks]))
+        return {
+            "kind": "subset", "tip_rmse_mm": rmse, "tip_p95_mm": 2 * rmse, "block_mean_mm": rmse, "coverage": 1.0,
+            "resets": 0, "blocks": blocks, "_block_errors": {n: (t, e) for n, e in errors.items()},
+        }  # fmt: skip
+
+    results = {
+        "ablation:sweeps:full": row({"sweep_pitch": 0.95 * base, "sweep_roll": 1.05 * base}),
+        "ablation:sweeps:imu_vision": row({"sweep_pitch": base, "sweep_roll": base}),
+        "ablation:teleop:full": row({"teleop1": burst}),
+        "ablation:teleop:imu_vision": row({"teleop1": base}),
+    }
+    res = gather(results, {})
+    vs = res["subsets"]["full"]["block_vs_best"]
+    assert {b: (c["against"], c["resolved"]) for b, c in vs.items()} == {
+        "sweep_pitch": ("imu_vision", 1), "sweep_roll": ("imu_vision", 1), "teleop1": ("imu_vision", 0)
+    }  # fmt: skip
+    assert vs["sweep_pitch"]["diff_mm"] < 0 < vs["sweep_roll"]["diff_mm"]
+    md = "\n".join(ablation_md(res))
+    assert "it loses sweep_roll by 0.036 mm to imu_vision (beyond the block bootstrap's 95 % interval" in md
+    assert "teleop1 by 0.0" in md and "to imu_vision (within the block bootstrap's 95 % interval" in md
+    assert "better than full fusion beyond the 95 % interval of a block bootstrap (the block's 2 s segments " in md
+    assert "drawn with replacement) in 1 of 3 blocks" in md
+    from services.fusion.evaluation import public
+
+    assert "_block_errors" not in json.dumps(public(res))  # the errors stay out of report.json
+
+
 def test_the_blackout_rows_say_how_many_and_the_papers_placement_comes_first():
     row = {"kind": "degraded", "tip_rmse_mm": 1.0, "tip_p95_mm": 2.0, "block_mean_mm": 1.0, "coverage": 1.0}
     results = {}
@@ -147,5 +184,8 @@ def test_paper_quick_end_to_end(tmp_path):
         blocks
     )
     assert "Full fusion is the best combination in " in md and f" of {len(blocks)} blocks" in md
+    vs = rep["subsets"]["full"]["block_vs_best"]
+    assert set(vs) == set(blocks) and all(c["low_mm"] <= c["diff_mm"] <= c["high_mm"] for c in vs.values())
+    assert "better than full fusion beyond the 95 % interval of a block bootstrap" in md
     for png in ("translation_boxplots.png", "rotation_boxplots.png", "ablations.png", "sweep_pitch.png"):
         assert (out / png).stat().st_size > 5_000
