@@ -165,7 +165,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
             rows = compare_blocks(series[a], series[b], args.segment_s)
             results.append({"session": Path(path).name, "compare": f"{a}:{b}", "blocks": rows})
             for c in rows:
-                won = c["diff_mm"] < 0
+                won = c["diff_mm"] <= 0  # a tie goes to A, as in the paper report
                 t = tally[(a, b)]
                 t[0 if won else 1] += 1
                 t[2] += int(not won and c["resolved"])
