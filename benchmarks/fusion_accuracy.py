@@ -42,6 +42,7 @@ from services.fusion.ablation import (
 from services.fusion.evaluation import (
     Estimate,
     EvaluationError,
+    block_errors_mm,
     block_windows,
     coverage_note,
     load_truth,
@@ -124,7 +125,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
         calib = given if given is not None else Calibration.from_mcap_metadata(read_metadata(path), where=path)
         msgs = list(iter_inputs(Path(path), {}))
         blocks = block_windows(truth.trials)
-        series = {}  # variant -> the scored series of its blocks, for --compare
+        series = {}  # variant -> its blocks' stamps and tip errors, for --compare
         for v in variants:
             base, smoothed = split_variant(v)
             use, sensors = variant_inputs(base, msgs, blocks, seed=0, blackouts=n_blackouts)
@@ -137,7 +138,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
             else:
                 est, diag, cpu = run_variant(use, calib, params, sensors, output)
             r = score_continuous(truth, est)
-            series[v] = r["_series"]
+            series[v] = block_errors_mm(r["_series"])
             row = {
                 "session": Path(path).name,
                 "variant": v,
@@ -184,14 +185,13 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
     return 0
 
 
-def compare_blocks(series_a: list, series_b: list, segment_s: float) -> list[dict]:
-    """Per block (the `_series` of two variants' `score_continuous`): `paired_rmse_difference`
-    of A's tip error against B's, with the block's name."""
-    out = []
-    for (name, t_a, _, _, e_a), (name_b, t_b, _, _, e_b) in zip(series_a, series_b, strict=True):
-        assert name == name_b, (name, name_b)
-        out.append({"name": name, **paired_rmse_difference(t_a, e_a * 1e3, t_b, e_b * 1e3, segment_s)})
-    return out
+def compare_blocks(errors_a: dict, errors_b: dict, segment_s: float) -> list[dict]:
+    """Per block (two variants' `block_errors_mm`): `paired_rmse_difference` of A's tip error
+    against B's, with the block's name."""
+    return [
+        {"name": name, **paired_rmse_difference(t_a, e_a, *errors_b[name], segment_s)}
+        for name, (t_a, e_a) in errors_a.items()
+    ]
 
 
 if __name__ == "__main__":

@@ -32,7 +32,14 @@ from typing import Any
 
 import numpy as np
 
-from services.fusion.evaluation import Estimate, block_windows, load_truth, read_trials, score_continuous
+from services.fusion.evaluation import (
+    Estimate,
+    block_errors_mm,
+    block_windows,
+    load_truth,
+    read_trials,
+    score_continuous,
+)
 from services.fusion.params import Params, parse_sensors
 from services.fusion.run_cli import iter_inputs
 from services.fusion.runner import FusionRunner
@@ -275,7 +282,7 @@ def evaluate_variant(
     if series:
         out["_series"] = r["_series"]
     if block_errors:
-        out["_block_errors"] = {name: (t, e * 1e3) for name, t, _, _, e in r["_series"]}
+        out["_block_errors"] = block_errors_mm(r["_series"])
     return out
 
 

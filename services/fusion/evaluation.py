@@ -189,6 +189,12 @@ def score_continuous(truth: Truth, est: Estimate) -> dict[str, Any]:
     return {"protocol": truth.protocol, "pooled": pooled, "blocks": blocks, "_series": series}
 
 
+def block_errors_mm(series: list) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{block: (scored stamps, tip error norms in mm)} from `score_continuous`'s `_series`: what
+    `paired_rmse_difference` compares."""
+    return {name: (t, e * 1e3) for name, t, _, _, e in series}
+
+
 def paired_rmse_difference(
     t_a_ns: np.ndarray, err_a_mm: np.ndarray, t_b_ns: np.ndarray, err_b_mm: np.ndarray,
     segment_s: float = 2.0, draws: int = 2000, level: float = 0.95, seed: int = 0,
