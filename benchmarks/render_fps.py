@@ -1,6 +1,8 @@
 """Frames per second of the bench's pixel renderer (1280x720 D405 colour, one core by default)
 for typical poses: the shaft about 0.14 m inserted, the camera 0.2-0.3 m from the tip looking
-down, the shaft within 10 deg of its 28.6 deg neutral tilt; without and with smoke."""
+down, the shaft within 10 deg of its 28.6 deg neutral tilt; without and with smoke; and with the
+`paper` profile's camera (services/bench/render/effects.py): at rest, in motion (the exposure's
+sub-frame renders), and with every episode kind under way."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import time
 import cv2
 import numpy as np
 
+from services.bench.render.effects import RENDER_PROFILE_OVERRIDES, Episode, RenderSession
 from services.bench.render.renderer import RenderParams, get_scene, render_frame
 from tiplog.camera_model import CameraModel
 
@@ -55,18 +58,35 @@ def example_pose() -> np.ndarray:
     return T
 
 
+def swept(poses: list[np.ndarray], speed_m_s: float, exposure_ms: float, m: int = 9) -> list[np.ndarray]:
+    """Each pose as (m, 4, 4) over the exposure, the tip moving at speed_m_s across the view (camera x)."""
+    out = []
+    for T in poses:
+        P = np.repeat(T[None], m, axis=0)
+        P[:, 0, 3] += np.linspace(-0.5, 0.5, m) * speed_m_s * exposure_ms * 1e-3
+        out.append(P)
+    return out
+
+
 def measure(
-    camera: CameraModel, params: RenderParams, poses: list[np.ndarray], seconds: float, truth: bool = False
+    camera: CameraModel,
+    params: RenderParams,
+    poses: list[np.ndarray],
+    seconds: float,
+    truth: bool = False,
+    session: RenderSession | None = None,
 ) -> tuple[float, float, float]:
     """Frames per second (overall, from the median frame time, from the 10th-percentile frame time):
     on a machine that others load, the last approaches the figure for an idle core."""
     rng = np.random.default_rng(1)
-    render_frame(camera, poses[0], params, rng)  # warm (scene already built)
+    render_frame(camera, poses[0], params, rng, t_s=1.0, session=session)  # warm (scene already built)
     times = []
     t_start = time.perf_counter()
     while time.perf_counter() - t_start < seconds or len(times) < 5:
         t0 = time.perf_counter()
-        render_frame(camera, poses[len(times) % len(poses)], params, rng, {} if truth else None)
+        t_s = 1.0 + 0.067 * len(times)
+        render_frame(camera, poses[len(times) % len(poses)], params, rng, {} if truth else None, t_s=t_s,
+                     session=session)  # fmt: skip
         times.append(time.perf_counter() - t0)
     t = np.array(times)
     return len(t) / t.sum(), 1.0 / np.median(t), 1.0 / np.percentile(t, 10)
@@ -95,10 +115,20 @@ def main(argv: list[str] | None = None) -> int:
         "defaults (5 % smoke, 5 % occlusion)": RenderParams(),
     }
     cases["no smoke, no occlusion, with truth"] = base
-    for name, params in cases.items():
-        fps, fps_med, fps_p10 = measure(camera, params, poses, args.seconds, truth="truth" in name)
+    paper = RenderParams(**RENDER_PROFILE_OVERRIDES["paper"])
+    still = RenderSession.create(camera, paper, 0.0, paper.junction_from_tip_mm * 1e-3, np.random.default_rng(0))
+    busy = RenderSession(still.lens, still.T_tool_shaft, tuple(Episode(k, 0.0, 1e6, 3) for k in ("occluder", "smoke",
+                                                                                                   "glare")))  # fmt: skip
+    m = paper.exposure_subframes_max
+    runs = {name: (params, poses, None) for name, params in cases.items()}
+    runs["paper, at rest"] = (paper, [np.repeat(T[None], m, axis=0) for T in poses], still)
+    runs["paper, tip 20 mm/s across the view"] = (paper, swept(poses, 0.02, paper.exposure_ms, m), still)
+    runs["paper, tip 60 mm/s across the view"] = (paper, swept(poses, 0.06, paper.exposure_ms, m), still)
+    runs["paper, at rest, 3 episodes under way"] = (paper, [np.repeat(T[None], m, axis=0) for T in poses], busy)
+    for name, (params, ps, session) in runs.items():
+        fps, fps_med, fps_p10 = measure(camera, params, ps, args.seconds, truth="truth" in name, session=session)
         print(
-            f"{name:36s} {fps:5.1f} frames/s overall, {fps_med:5.1f} by median frame ({1e3 / fps_med:5.1f} ms), "
+            f"{name:40s} {fps:5.1f} frames/s overall, {fps_med:5.1f} by median frame ({1e3 / fps_med:5.1f} ms), "
             f"{fps_p10:5.1f} by 10th-percentile frame ({1e3 / fps_p10:5.1f} ms)"
         )
     if args.png:

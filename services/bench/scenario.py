@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
 
+from services.bench.profiles import DEFAULT_PROFILE, PROFILES, profile_overrides
 from tiplog.camera_model import CameraModel
 from tiplog.config import ConfigError, format_validation_error, parse_override, read_yaml_file, set_path
 
@@ -103,6 +104,13 @@ class AccelConfig(_M):
     pose_tilt_sd_deg: float = F(0.21, ge=0.0, le=10.0, description="pose-locked direction error (held out 0.21)")
     pose_corr_deg: float = F(6.0, gt=0.0, le=180.0)
     pose_corr_m: float = F(0.01, gt=0.0, le=1.0)
+    vibration_mps2_per_mps: float = F(
+        0.0, ge=0.0, le=100.0, description="RMS vibration of the specific force per m/s of tip speed (robot and hand)"
+    )
+    vibration_hz: float = F(15.0, gt=0.5, le=100.0, description="centre of the vibration band (about an octave wide)")
+    compliance_deg_per_mps2: float = F(
+        0.0, ge=0.0, le=5.0, description="mount compliance: IMU tilt against the tool per m/s^2 of acceleration"
+    )
     self_recal: bool = F(False, description="BNO085 runtime self-recalibration (off in the paper's firmware)")
     self_recal_jump_frac: float = F(0.063, ge=0.0, le=0.5)
     self_recal_jump_time_s: float = F(600.0, ge=0.0, le=1e5, description="jump completes within 13 min")
@@ -120,6 +128,13 @@ class TofConfig(_M):
     pose_sd_mm: float = F(3.04, ge=0.0, le=50.0, description="pose-locked systematic error across poses")
     pose_corr_deg: float = F(4.0, gt=0.0, le=180.0)
     pose_corr_m: float = F(0.008, gt=0.0, le=1.0)
+    pose_corr_spread: float = F(
+        1.0, ge=1.0, le=10.0, description="each session draws its correlation lengths log-uniform within this factor"
+    )
+    integration_ms: float = F(0.0, ge=0.0, le=100.0, description="ranging time, centred on the sample instant")
+    beam_fov_deg: float = F(25.0, gt=0.0, le=60.0, description="full cone of the emitter/receiver field of view")
+    surface_relief_mm: float = F(0.0, ge=0.0, le=20.0, description="SD of the target surface about its plane")
+    surface_corr_mm: float = F(15.0, gt=0.1, le=1000.0, description="correlation length of that relief")
     repeat_sd_mm: float = F(0.39, ge=0.0, le=20.0, description="slow drift: 0.43 mm over repeats with the white part")
     repeat_tau_s: float = F(20.0, gt=0.0, le=1e4)
     dropout_prob: float = F(0.01, ge=0.0, le=1.0, description="sigma/signal/phase failures per sample")
@@ -190,6 +205,34 @@ class VisionConfig(_M):
     metric_scale_per_px: float = F(0.04, ge=0.0, le=1.0, description="growth per px/frame of image motion")
     wrong_seg_prob: float = F(0.04, ge=0.0, le=1.0)
     wrong_seg_deg: Range2 = F((2.0, 6.0), description="range of a wrong line's error")
+    # Motion (all zero in the clean profile): exposure blur, errors growing with image speed and
+    # away from the validated range, quality-following gate, correlated dropouts.
+    exposure_ms: float = F(0.0, ge=0.0, le=66.0, description="locked exposure of the global-shutter colour sensor")
+    edge_width_px: float = F(2.0, gt=0.1, le=50.0, description="edge width at rest; blur across it adds noise")
+    junction_blur_bias: float = F(0.0, ge=0.0, le=1.0, description="junction shift distally, per px of axial blur")
+    junction_blur_sd: float = F(0.0, ge=0.0, le=2.0, description="junction noise SD per px of axial blur")
+    junction_speed_px_per_px: float = F(
+        0.0, ge=0.0, le=5.0, description="junction noise SD [px] per px/frame of image motion"
+    )
+    plane_speed_deg_per_px: float = F(
+        0.0, ge=0.0, le=1.0, description="tangent-plane noise SD [deg] per px/frame of image motion"
+    )
+    range_growth_per_10mm: float = F(
+        0.0, ge=0.0, le=10.0, description="relative error growth per 10 mm beyond 140 +- 10 mm insertion"
+    )
+    range_growth_per_10deg: float = F(
+        0.0, ge=0.0, le=10.0, description="relative error growth per 10 deg beyond 10 deg tilt"
+    )
+    validated_depth_mm: Range2 = F((130.0, 150.0), description="insertion depth range of validated reconstruction")
+    validated_tilt_deg: float = F(10.0, gt=0.0, le=90.0, description="tilt from neutral of validated reconstruction")
+    gate_quality_weight: float = F(
+        0.0, ge=0.0, le=4.0, description="weight of the frame's own motion error in the gate measures (quadrature)"
+    )
+    dropout_rate_per_min: float = F(0.0, ge=0.0, le=60.0, description="correlated vision dropouts (occlusion, smoke)")
+    dropout_s: Range2 = F((0.5, 10.0), description="dropout durations, log-uniform")
+    dropout_junction_only_frac: float = F(0.0, ge=0.0, le=1.0, description="dropouts that hide only the junction")
+    junction_across_mm: float = F(0.0, ge=0.0, le=5.0, description="junction point off the axis, across the shaft")
+    junction_across_azimuth_deg: float = F(90.0, ge=-180.0, le=180.0, description="its direction, from tool x")
     min_visible_px: float = F(60.0, ge=0.0, le=4000.0, description="visible shaft length in the image")
     processing_ms: float = F(113.0, ge=0.0, le=5000.0)
     processing_jitter_ms: float = F(12.0, ge=0.0, le=1000.0)
@@ -222,6 +265,9 @@ class OutputConfig(_M):
 
 class Scenario(_M):
     name: str = F("custom", pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    # The models' own defaults are the clean profile; load_scenario applies DEFAULT_PROFILE
+    # (paper) to every built-in scenario and scenario file that names none.
+    profile: str = F("clean", description="error profile applied under the scenario's own fields (clean, paper, harsh)")
     protocol: str = F("static", pattern=r"^[a-z0-9_]{1,32}$")
     duration_s: float | None = F(None, gt=0.0, le=1e5, description="cut the protocol (default: all of it)")
     motion: MotionConfig = F(default_factory=lambda: MotionConfig(**MOTION_DEFAULTS))
@@ -236,6 +282,13 @@ class Scenario(_M):
     calibration: CalibrationErrorConfig = F(default_factory=CalibrationErrorConfig)
     output: OutputConfig = F(default_factory=OutputConfig)
     render: RenderParams = F(default_factory=RenderParams, description="pixel tier only")
+
+    @field_validator("profile")
+    @classmethod
+    def _known_profile(cls, v: str) -> str:
+        if v not in PROFILES:
+            raise ValueError(f"unknown profile; choose from {', '.join(PROFILES)}")
+        return v
 
     @field_validator("protocol")
     @classmethod
@@ -267,11 +320,24 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _profile_of(doc: dict[str, Any], pairs: list[tuple[str, Any]]) -> str:
+    """The profile a scenario asks for: the last `profile=` override, else the file's, else the default."""
+    name = doc.get("profile", DEFAULT_PROFILE)
+    for k, v in pairs:
+        if k == "profile":
+            name = v
+    if not isinstance(name, str) or name not in PROFILES:
+        raise ConfigError(f"scenario error: profile: {name!r} is not a profile ({', '.join(PROFILES)})")
+    return name
+
+
 def load_scenario(name_or_path: str | Path, overrides: list[str] | dict[str, Any] | None = None) -> Scenario:
     """A built-in scenario by name, or a YAML file (optionally `base: <builtin>`), then
-    overrides ('section.field=value' strings or a {dotted: value} dict). Raises ConfigError
-    naming the field path of every unknown or out-of-range field."""
+    overrides ('section.field=value' strings or a {dotted: value} dict). Precedence: built-in
+    defaults < the profile (`profile`, default paper) < the file's explicit fields < overrides.
+    Raises ConfigError naming the field path of every unknown or out-of-range field."""
     key = str(name_or_path)
+    doc: dict[str, Any] = {}
     if key in BUILTIN:
         data: dict[str, Any] = _merge({"name": key, "motion": dict(MOTION_DEFAULTS)}, BUILTIN[key])
     else:
@@ -284,8 +350,11 @@ def load_scenario(name_or_path: str | Path, overrides: list[str] | dict[str, Any
         base = doc.pop("base", None)
         if base is not None and base not in BUILTIN:
             raise ConfigError(f"scenario error: base: {base!r} is not a built-in ({', '.join(BUILTIN)})")
-        data = _merge(_merge({"name": p.stem, "motion": dict(MOTION_DEFAULTS)}, BUILTIN[base] if base else {}), doc)
-    pairs = overrides.items() if isinstance(overrides, dict) else [parse_override(o) for o in overrides or []]
+        data = _merge({"name": p.stem, "motion": dict(MOTION_DEFAULTS)}, BUILTIN[base] if base else {})
+    pairs = list(overrides.items()) if isinstance(overrides, dict) else [parse_override(o) for o in overrides or []]
+    profile = _profile_of(doc, pairs)
+    data = _merge(_merge(data, profile_overrides(profile)), doc)
+    data["profile"] = profile
     for k, v in pairs:
         set_path(data, k, v)
     try:

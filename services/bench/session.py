@@ -6,7 +6,7 @@ stream), camera/info, vision/observation (measurement tier; header.stamp_ns = ca
 stamp, logged when processing finishes) or camera/image (pixel tier, foxglove RawImage
 rgb8, logged at capture), bench/robot (ground truth, evaluation only, at
 output.robot_rate_hz). Log time = host arrival. Metadata: scenario (resolved), session
-(seed, tier, protocol, rates), device (the module's hello as the recorder writes it: its
+(seed, tier, protocol, error profile, rates), device (the module's hello as the recorder writes it: its
 nominal rates), calibration_as_calibrated, calibration_truth (evaluation
 only), trials.
 """
@@ -85,6 +85,7 @@ def generate(
                 "tier": tier,
                 "protocol": scenario.protocol,
                 "scenario": scenario.name,
+                "profile": scenario.profile,
                 "duration_s": f"{gt.t_ns[-1] * 1e-9:.3f}",
                 "robot_rate_hz": str(scenario.output.robot_rate_hz),
                 "device_clock_offset_ns": str(clock.offset_ns),

@@ -52,30 +52,53 @@ class SimulatedSession:
     timings: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
     _render_rng: np.random.Generator | None = None
     _render_params: Any = None
+    _render_session: Any = None
 
     def frame_pose_cam(self, k: int) -> np.ndarray:
         """T_camera_tool (4x4) at the instant frame k shows."""
-        t = self.camera_frames.t_true_ns[k : k + 1]
+        return self.pose_cam(self.camera_frames.t_true_ns[k : k + 1])
+
+    def pose_cam(self, t_ns: np.ndarray) -> np.ndarray:
+        """T_camera_tool (4x4) at the session time t_ns ((1,) array) [ns]."""
         T = np.eye(4)
-        T[:3, :3] = _interp_R(t, self.kin.t_ns, self.kin.R_base_tool)[0]
-        T[:3, 3] = _interp(t, self.kin.t_ns, self.kin.p_tip_base_m)[0]
+        T[:3, :3] = _interp_R(t_ns, self.kin.t_ns, self.kin.R_base_tool)[0]
+        T[:3, 3] = _interp(t_ns, self.kin.t_ns, self.kin.p_tip_base_m)[0]
         return np.linalg.inv(self.truth.T_base_camera) @ T
 
     def render_frame(self, k: int) -> np.ndarray:
-        """Pixel tier: frame k as uint8 (H, W, 3) RGB."""
+        """Pixel tier: frame k as uint8 (H, W, 3) RGB, integrated over the exposure (render.exposure_ms)
+        centred on the instant the frame shows."""
         from services.bench.render import renderer as render
+        from services.bench.render.effects import RenderSession
 
+        sc = self.scenario
         if self._render_params is None:
-            sc = self.scenario
             self._render_params = sc.render.model_copy(
                 update={
                     "shaft_radius_m": sc.instrument.shaft_radius_m,
                     "junction_from_tip_mm": max(2.0, sc.instrument.junction_proximal_m * 1e3),
                 }
             )
+            # its own stream of the seed: every other draw of the session is what it was without it
+            s_render = np.random.SeedSequence(self.seed).spawn(5)[4]
+            self._render_session = RenderSession.create(
+                sc.camera.model(),
+                self._render_params,
+                float(self.kin.t_ns[-1]) * 1e-9,
+                self._render_params.junction_from_tip_mm * 1e-3,
+                np.random.default_rng(s_render),
+            )
         assert self._render_rng is not None
+        p = self._render_params
+        t_ns = int(self.camera_frames.t_true_ns[k])
+        if p.exposure_ms > 0:
+            m = p.exposure_subframes_max + (p.exposure_subframes_max % 2 == 0)
+            t_sub = np.clip(t_ns + np.round(np.linspace(-0.5, 0.5, m) * p.exposure_ms * 1e6), 0, self.kin.t_ns[-1])
+            T = np.stack([self.pose_cam(t_sub[i : i + 1]) for i in range(m)])
+        else:
+            T = self.frame_pose_cam(k)
         return render.render_frame(
-            self.scenario.camera.model(), self.frame_pose_cam(k), self._render_params, self._render_rng
+            sc.camera.model(), T, p, self._render_rng, t_s=t_ns * 1e-9, session=self._render_session
         )
 
 

@@ -304,15 +304,19 @@ def reprojection_px(calib: Calibration, R: np.ndarray, normals: np.ndarray) -> f
     predicted shaft from the observed axis line (midline, plane normal n_L - n_R), plus the
     image distance between the predicted and the observed closest axis point P0 (fixes where
     along that line the shaft lies: a branch mirrored within the camera's plane of view
-    projects onto the same line). inf if the shaft is behind the camera."""
+    projects onto the same line). inf if the predicted shaft is behind the camera; a frame whose
+    observed P0 lies behind the camera (an outlier no shaft in view can give) is left out, and
+    with no frame left the score is inf."""
     A = calib.R_base_camera.T
     r_c = A @ (calib.rcm_base_m - calib.p_base_camera_m)
     u_c = A @ R @ E_S
     X = r_c[None, :] + u_c[None, :] * np.linspace(0.08, 0.14, 10)[:, None]
     p0_pred = closest_axis_point(r_c, u_c)
     p0_obs = p0_from_normals(normals[:, 0, :], normals[:, 1, :], calib.shaft_radius_m)
-    if np.any(X[:, 2] <= 0) or p0_pred[2] <= 0 or np.any(p0_obs[:, 2] <= 0):
+    front = p0_obs[:, 2] > 0
+    if np.any(X[:, 2] <= 0) or p0_pred[2] <= 0 or not front.any():
         return math.inf
+    normals, p0_obs = normals[front], p0_obs[front]
     mid = normals[:, 0, :] - normals[:, 1, :]
     mid = mid / np.linalg.norm(mid[:, :2], axis=1, keepdims=True)
     line = np.mean(np.abs((X / X[:, 2:3]) @ mid.T))

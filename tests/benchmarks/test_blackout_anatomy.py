@@ -70,19 +70,21 @@ def test_the_heading_lost_in_a_blackout_follows_the_gyro_walk(tmp_path):
     walking_loose = _rows(tmp_path, walking_session, loose)
     walking = _rows(tmp_path, walking_session)
     assert max(r["bias_walk_dps"] for r in walking) > 0.3
+    # each run's heading against the drift of the bias it held: the two runs start their
+    # blackouts with different bias estimates, so their drifts differ
     d = np.array([r["gyro_drift_deg"] for r in walking])
+    d_loose = np.array([r["gyro_drift_deg"] for r in walking_loose])
     assert np.max(np.abs(d)) > 5.0
     # with the working depth held loosely (5 mm) nothing else holds the heading for 10 s:
     # not gravity, not the RCM, hardly the ToF
     h_loose = np.array([r["heading_change_deg"] for r in walking_loose])
-    assert np.corrcoef(h_loose, d)[0, 1] > 0.9
-    assert 0.7 < np.polyfit(d, h_loose, 1)[0] < 1.3
+    assert np.corrcoef(h_loose, d_loose)[0, 1] > 0.9
+    assert 0.7 < np.polyfit(d_loose, h_loose, 1)[0] < 1.3
     # held as tightly as the depth was steady with vision, the ToF's range to the plane ties
     # the heading a little: the same walk, less of it lost
     h = np.array([r["heading_change_deg"] for r in walking])
     assert np.corrcoef(h, d)[0, 1] > 0.9
-    assert 0.4 < np.polyfit(d, h, 1)[0] < np.polyfit(d, h_loose, 1)[0]
-    assert np.sqrt(np.mean(h**2)) < np.sqrt(np.mean(h_loose**2))
+    assert 0.4 < np.polyfit(d, h, 1)[0] < np.polyfit(d_loose, h_loose, 1)[0]
     # a walk ten times the one the filter expects: it loses far more than its sigma says
     assert np.sqrt(np.mean(blackout_anatomy.heading_z(walking) ** 2)) > 2.0
     for r in walking:

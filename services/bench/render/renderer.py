@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from functools import partial
 from typing import Annotated
 
 import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from services.bench.render.effects import RenderSession, crossing_instrument, draw_glare, smoke_alpha
 from services.bench.render.geometry import InstrumentGeometry, silhouette_lines
 from services.bench.render.instrument import (
     Material,
@@ -41,6 +43,7 @@ from tiplog.camera_model import CameraModel
 
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
 RGB = tuple[Unit, Unit, Unit]
+PosSeconds = Annotated[float, Field(gt=0.0, le=600.0)]
 
 # fields that change the precomputed scene (floor, texture, gain); the others act per frame
 SCENE_FIELDS = (
@@ -96,6 +99,27 @@ class RenderParams(BaseModel):
     smoke_probability: Unit = 0.05
     smoke_density: Unit = 0.45
     occlusion_probability: Unit = 0.05
+    # a real bench camera in motion (services/bench/render/effects.py; off by default)
+    exposure_ms: float = Field(
+        0.0, ge=0.0, le=66.7, description="locked exposure time (global shutter); 0: drawn at one instant"
+    )
+    exposure_subframe_px: float = Field(
+        1.0, gt=0.05, le=10.0, description="image motion between the sub-frame renders averaged over the exposure"
+    )
+    exposure_subframes_max: int = Field(9, ge=1, le=33)
+    lens_error_sd_frac: float = Field(
+        0.0, ge=0.0, le=0.02, description="factory calibration residual: fx, fy, cx, cy (in units of fx, fy)"
+    )
+    lens_k1_error_sd: float = Field(0.0, ge=0.0, le=0.05, description="residual of the radial distortion k1")
+    shaft_tilt_sd_deg: float = Field(
+        0.0, ge=0.0, le=2.0, description="visible shaft against the tool axis (straightness, mount)"
+    )
+    occluder_rate_per_min: float = Field(0.0, ge=0.0, le=60.0, description="episodes of a second instrument")
+    occluder_duration_s: tuple[PosSeconds, PosSeconds] = (1.0, 5.0)
+    smoke_rate_per_min: float = Field(0.0, ge=0.0, le=60.0, description="episodes of drifting smoke")
+    smoke_duration_s: tuple[PosSeconds, PosSeconds] = (3.0, 10.0)
+    glare_rate_per_min: float = Field(0.0, ge=0.0, le=60.0, description="episodes of specular glare")
+    glare_duration_s: tuple[PosSeconds, PosSeconds] = (0.5, 3.0)
 
     @model_validator(mode="after")
     def _check(self) -> RenderParams:
@@ -112,6 +136,10 @@ class RenderParams(BaseModel):
             raise ValueError(f"floor_normal_cam must face the camera (negative z), got {self.floor_normal_cam}")
         if not all(np.isfinite(self.light_pos_cam_m)):
             raise ValueError("light_pos_cam_m must be finite")
+        for kind in ("occluder", "smoke", "glare"):
+            lo, hi = getattr(self, f"{kind}_duration_s")
+            if lo > hi:
+                raise ValueError(f"{kind}_duration_s must run from min to max (got ({lo:g}, {hi:g}))")
         return self
 
 
@@ -142,9 +170,17 @@ def render_frame(
     params: RenderParams,
     rng: np.random.Generator,
     truth_out: dict | None = None,
+    *,
+    t_s: float | None = None,
+    session: RenderSession | None = None,
 ) -> np.ndarray:
     """One colour frame (H, W, 3) uint8 RGB of the instrument at T_camera_tool (4x4; tool origin at
-    the tip, z along the shaft, distal). With `truth_out`, fills it with the exact geometry:
+    the tip, z along the shaft, distal), or over the exposure: (M, 4, 4), M odd, poses evenly spaced
+    over the exposure interval with the frame's instant in the middle (global shutter: every pixel
+    integrates the same interval), drawn as the mean of sub-frame renders. `session` (a
+    RenderSession) draws through its lens, with its shaft tilt and its episodes under way at the
+    session time t_s [s]. With `truth_out`, fills it with the exact geometry at the middle pose (of
+    the drawn shaft, in the lens the frame is drawn through):
       line_left, line_right: (3,) lines a*u + b*v + c = 0 in undistorted pixels, (a, b) unit, positive
         inside the shaft; n_left_cam, n_right_cam: the tangent-plane normals (camera frame);
       junction_px, tip_px: (2,) undistorted pixels of the axis points at the junction and the tip
@@ -153,41 +189,42 @@ def render_frame(
       mask: (H, W) bool, image pixels whose centre ray first meets the shaft (proximal of the junction);
       jaws_mask: (H, W) bool, the same for the jaws; occluder_mask: (H, W) bool, pixels covered >= 50 %
         by the occluder (in front of the instrument); occlusion: "none" | "blob" | "instrument";
-      smoke: bool."""
-    scene = get_scene(camera, params)
-    geom = InstrumentGeometry.from_pose(
-        T_camera_tool,
-        params.shaft_radius_m,
-        params.jaw_radius_m,
-        params.junction_from_tip_mm * 1e-3,
-        params.shaft_length_m,
-    )
-    line_l, line_r, n_l, n_r = silhouette_lines(geom, camera)
+      smoke: bool; glare: bool; subframes: sub-frame renders averaged."""
+    T_all = np.asarray(T_camera_tool, float)
+    if T_all.ndim == 2:
+        T_all = T_all[None]
+    if T_all.ndim != 3 or T_all.shape[1:] != (4, 4) or len(T_all) % 2 == 0:
+        raise ValueError(f"T_camera_tool must be 4x4 or (M, 4, 4) with M odd (got shape {T_all.shape})")
+    lens = camera if session is None else session.lens
+    if session is not None:
+        T_all = T_all @ session.T_tool_shaft
+    scene = get_scene(lens, params)
     light = np.asarray(params.light_pos_cam_m, float)
     shaft_mat = Material(np.asarray(params.shaft_albedo), params.shaft_specular, params.shaft_shininess)
     jaw_mat = Material(np.asarray(params.jaw_albedo), params.jaw_specular, params.jaw_shininess)
+    draw = partial(_draw_instrument, scene=scene, params=params, shaft_mat=shaft_mat, jaw_mat=jaw_mat, light=light)
 
-    defocus = (params.focus_distance_m, params.defocus_px_per_dioptre) if params.defocus_px_per_dioptre > 0 else None
+    subs = _exposure_subset(T_all, lens, params)
     canvas = scene.floor_dn.copy()
-    band = draw_cylinder_band(
-        canvas,
-        scene,
-        geom.p_tip_cam_m,
-        geom.axis_cam,
-        geom.shaft_radius_m,
-        geom.s_proximal,
-        geom.s_junction,
-        (line_l, line_r),
-        shaft_mat,
-        light,
-        params.ambient,
-        defocus=defocus,
-    )
-    box = draw_jaws_region(
-        canvas, scene, geom, np.asarray(T_camera_tool, float)[:3, 1], shaft_mat, jaw_mat, light, params.ambient
-    )
-    if box is not None:
-        _defocus_box(canvas, box, float(defocus_sigma_px(geom.point(geom.s_junction)[2], defocus)))
+    if len(subs) == 1:
+        geom, band, box = draw(canvas, subs[0])
+    else:  # mean of sub-frames: each drawn on the floor, its difference added where it drew
+        floor = scene.floor_dn.reshape(-1, 3)
+        out = canvas.reshape(-1, 3)
+        work = scene.floor_dn.copy()
+        flat_w = work.reshape(-1, 3)
+        w = canvas.shape[1]
+        for i, T in enumerate(subs):
+            g_i, band_i, box_i = draw(work, T)
+            if i == len(subs) // 2:
+                geom, band, box = g_i, band_i, box_i
+            idx = band_i[0] * w + band_i[1]
+            if box_i is not None:
+                bi, bj = np.mgrid[box_i[0], box_i[1]]
+                idx = np.unique(np.concatenate([idx, (bi * w + bj).ravel()]))
+            out[idx] += (flat_w[idx] - floor[idx]) / len(subs)
+            flat_w[idx] = floor[idx]
+    line_l, line_r, n_l, n_r = silhouette_lines(geom, lens)
 
     occlusion, occ_cov = "none", None
     if rng.random() < params.occlusion_probability:
@@ -205,12 +242,30 @@ def render_frame(
     smoke = bool(rng.random() < params.smoke_probability)
     if smoke:
         _add_smoke(canvas, scene, rng, params.smoke_density)
+    glare = False
+    for ep in session.active(t_s) if session is not None else ():
+        if ep.kind == "occluder":
+            other = crossing_instrument(scene, geom, ep, t_s)
+            if other is not None:
+                occ_cov = np.zeros(canvas.shape[:2], np.float32) if occ_cov is None else occ_cov
+                g2, lines2 = other
+                mat2 = Material(np.full(3, 0.08 + 0.15 * (ep.seed % 7) / 6.0), 0.6, 40.0)
+                draw_cylinder_band(canvas, scene, g2.p_tip_cam_m, g2.axis_cam, g2.shaft_radius_m, g2.s_proximal,
+                                   0.0, lines2, mat2, light, params.ambient, coverage_out=occ_cov)  # fmt: skip
+                occlusion = "instrument"
+        elif ep.kind == "smoke":
+            alpha = smoke_alpha(canvas.shape[:2], ep, t_s, params.smoke_density)
+            canvas[:] = cv2.blendLinear(canvas, scene.smoke_dn, 1.0 - alpha, alpha)
+            smoke = True
+        else:
+            draw_glare(canvas, scene, geom, ep, t_s)
+            glare = True
 
     if params.blur_sigma_px > 0:
         canvas = cv2.GaussianBlur(canvas, (0, 0), params.blur_sigma_px)
     dn = canvas  # digital numbers >= 0: exposure (locked) and vignetting are folded in by the scene
     if params.sensor_noise:
-        h, w = camera.height, camera.width
+        h, w = lens.height, lens.width
         draws = np.frombuffer(rng.bytes(h * w * 3), np.uint8).reshape(h, w, 3)
         z = cv2.LUT(draws, scene.normal_lut)
         sigma = cv2.LUT(cv2.convertScaleAbs(dn), scene.sigma_lut)
@@ -223,19 +278,76 @@ def render_frame(
         if box is not None:  # the jaws and the junction may reach beyond the band
             bi, bj = np.mgrid[box[0], box[1]]
             rows, cols = np.concatenate([rows, bi.ravel()]), np.concatenate([cols, bj.ravel()])
-        _fill_truth(truth_out, scene, camera, geom, (rows, cols), line_l, line_r, n_l, n_r, occlusion, occ_cov, smoke)
+        _fill_truth(truth_out, scene, lens, geom, (rows, cols), line_l, line_r, n_l, n_r, occlusion, occ_cov, smoke)
+        truth_out.update(glare=glare, subframes=len(subs))
     return img
 
 
-def _defocus_box(canvas: np.ndarray, box: tuple[slice, slice], sigma_px: float) -> None:
-    """Blur the jaws' box (and a margin) by the defocus at the junction's depth, in place."""
+def _draw_instrument(canvas, T_camera_tool, *, scene, params, shaft_mat, jaw_mat, light):
+    """Draw the instrument at one pose in place: (geometry, band pixels (rows, cols), the box the jaws
+    and their defocus touched or None)."""
+    geom = InstrumentGeometry.from_pose(
+        T_camera_tool,
+        params.shaft_radius_m,
+        params.jaw_radius_m,
+        params.junction_from_tip_mm * 1e-3,
+        params.shaft_length_m,
+    )
+    line_l, line_r, _, _ = silhouette_lines(geom, scene.camera)
+    defocus = (params.focus_distance_m, params.defocus_px_per_dioptre) if params.defocus_px_per_dioptre > 0 else None
+    band = draw_cylinder_band(
+        canvas,
+        scene,
+        geom.p_tip_cam_m,
+        geom.axis_cam,
+        geom.shaft_radius_m,
+        geom.s_proximal,
+        geom.s_junction,
+        (line_l, line_r),
+        shaft_mat,
+        light,
+        params.ambient,
+        defocus=defocus,
+    )
+    box = draw_jaws_region(canvas, scene, geom, T_camera_tool[:3, 1], shaft_mat, jaw_mat, light, params.ambient)
+    if box is not None:
+        box = _defocus_box(canvas, box, float(defocus_sigma_px(geom.point(geom.s_junction)[2], defocus)))
+    return geom, band, box
+
+
+def _exposure_subset(T_all: np.ndarray, lens: CameraModel, params: RenderParams) -> list[np.ndarray]:
+    """The poses to draw over the exposure: enough that the junction, the tip and the shaft 40 mm
+    proximal move at most about exposure_subframe_px between two of them (odd in number, the middle
+    one always among them; one at rest or without an exposure time)."""
+    m = len(T_all)
+    mid = T_all[m // 2]
+    if m == 1 or params.exposure_ms <= 0:
+        return [mid]
+    j = params.junction_from_tip_mm * 1e-3
+    pts_tool = np.array([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, -j, 1.0], [0.0, 0.0, -j - 0.04, 1.0]])
+    ends = np.stack([(T_all[0] @ pts_tool.T).T[:, :3], (T_all[-1] @ pts_tool.T).T[:, :3]])
+    if np.any(ends[..., 2] < 0.01):
+        return [mid]
+    px = lens.project(ends.reshape(-1, 3), distort=False).reshape(2, -1, 2)
+    travel = float(np.max(np.linalg.norm(px[1] - px[0], axis=-1)))
+    n = int(np.clip(np.ceil(travel / params.exposure_subframe_px) + 1, 1, min(m, params.exposure_subframes_max)))
+    n = n + 1 if n % 2 == 0 and n < m else n - (n % 2 == 0)
+    if n <= 1:
+        return [mid]
+    return [T_all[i] for i in np.round(np.linspace(0, m - 1, n)).astype(int)]
+
+
+def _defocus_box(canvas: np.ndarray, box: tuple[slice, slice], sigma_px: float) -> tuple[slice, slice]:
+    """Blur the jaws' box (and a margin) by the defocus at the junction's depth, in place; the box
+    with its margin."""
     if sigma_px < 0.1:
-        return
+        return box
     m = int(np.ceil(3 * sigma_px))
     h, w = canvas.shape[:2]
     i0, i1 = max(0, box[0].start - m), min(h, box[0].stop + m)
     j0, j1 = max(0, box[1].start - m), min(w, box[1].stop + m)
     canvas[i0:i1, j0:j1] = cv2.GaussianBlur(canvas[i0:i1, j0:j1], (0, 0), sigma_px)
+    return slice(i0, i1), slice(j0, j1)
 
 
 def _add_smoke(canvas: np.ndarray, scene: Scene, rng: np.random.Generator, density: float) -> None:

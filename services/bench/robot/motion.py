@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from services.bench.robot import protocols
 from services.bench.robot.fr3 import FR3_Q_MAX_RAD, FR3_Q_MIN_RAD, Fr3Kinematics, InstrumentMount, rpy_to_matrix
+from services.bench.robot.operator_style import OperatorStyle
 from services.bench.robot.protocols import FREE, HOLD, MOVE, POST, PRE  # noqa: F401  (re-exported)
 from services.bench.robot.servo import RcmServo, ServoParams, project_onto_port
 
@@ -56,6 +57,13 @@ class MotionConfig(BaseModel):
     posture_seed_rad: Vec7 = Field((0.0, -0.25, 0.0, -2.2, 0.0, 2.2, 0.0), description="IK seed / null-space target")
     joint_margin_rad: float = Field(0.01, ge=0.0, le=0.3, description="hard clamp inside the joint limits")
     rate_hz: float = Field(1000.0, ge=250.0, le=4000.0)
+    operator_tremor_mm: float = Field(0.0, ge=0.0, le=2.0, description="teleop: tremor, RMS tip travel per tilt axis")
+    operator_tremor_hz: float = Field(9.0, ge=3.0, le=15.0, description="teleop: tremor frequency")
+    operator_pauses_per_min: float = Field(0.0, ge=0.0, le=10.0, description="teleop: hesitation pauses per minute")
+    operator_pause_s: float = Field(1.5, ge=0.2, le=5.0, description="teleop: length of each hesitation pause")
+    operator_detour: float = Field(
+        0.0, ge=0.0, le=1.0, description="teleop: path economy, extra wandering as a fraction of the tilt's RMS"
+    )
     correction: Literal["tip", "target"] = "tip"
     shaft_length_m: float = Field(0.34, ge=0.05, le=0.6)
     p_flange_handle_m: Vec3 = Field((0.0, 0.0, 0.05))
@@ -166,6 +174,13 @@ def _context(cfg: MotionConfig) -> protocols.ProtocolContext:
         min_move_s=cfg.min_move_s,
         working_depth_m=(cfg.working_depth_mm[0] * 1e-3, cfg.working_depth_mm[1] * 1e-3),
         tilt_envelope_rad=np.deg2rad(cfg.tilt_envelope_deg),
+        operator=OperatorStyle(
+            cfg.operator_tremor_mm,
+            cfg.operator_tremor_hz,
+            cfg.operator_pauses_per_min,
+            cfg.operator_pause_s,
+            cfg.operator_detour,
+        ),
     )
 
 

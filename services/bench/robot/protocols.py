@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
+from services.bench.robot import operator_style
 from services.bench.robot.trajectory import (  # noqa: F401  (re-exported for callers)
     FREE,
     HOLD,
@@ -206,7 +207,8 @@ def _scale_for_fraction(mag: np.ndarray, threshold: float, target: float) -> flo
 
 
 def teleop_block(ctx: ProtocolContext, seed: int, block: int) -> Command:
-    """One 120 s teleoperated-like block: smooth random targets with human-like (< 1-2 Hz) spectra.
+    """One 120 s teleoperated-like block: smooth random targets with human-like (< 1-2 Hz) spectra,
+    moved as the context's operator moves (tremor, hesitation pauses, detours; none by default).
 
     The envelope matches the paper's operator: depth inside the working range 85-99 % of the time
     and tilt within 10 deg of neutral 93-97 % of the time; tip speed under the limit.
@@ -236,6 +238,10 @@ def teleop_block(ctx: ProtocolContext, seed: int, block: int) -> Command:
             break
     else:
         raise ValueError("teleop: no block under the tip-speed limit after 50 draws")
+    if ctx.operator.active:  # after the draw is accepted: the intended motion is the same operator or not
+        poses = operator_style.apply(
+            poses, ctx.operator, np.random.default_rng([seed, block, attempt, 1]), ctx.rate_hz, w
+        )
     pre = b.hold(WINDOW_S, PRE, 0)
     mv = b.add_poses(poses, MOVE, 0)
     b.pose = np.array([0.0, 0.0, ctx.depth_m, 0.0])

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from services.bench.robot.operator_style import OperatorStyle
 from tiplog.geometry import so3_exp
 
 FREE, PRE, MOVE, POST, HOLD = 0, 1, 2, 3, 4
@@ -35,6 +36,7 @@ class ProtocolContext:
     min_move_s: float = 1.5
     working_depth_m: tuple[float, float] = (0.130, 0.150)
     tilt_envelope_rad: float = np.deg2rad(10.0)
+    operator: OperatorStyle = OperatorStyle()  # how the teleop operator departs from the drawn path
 
     @property
     def u0(self) -> np.ndarray:

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from services.bench.scenario import ClockConfig, Scenario
+from services.bench.sensors import motion_terms as mt
 from services.bench.sensors.calibration import BenchConstants
 from services.bench.sensors.pose_field import PoseField, ou_process
 from tiplog.geometry import so3_exp, so3_log
@@ -183,9 +184,28 @@ def accel(kin: Kinematics, sc: Scenario, const: BenchConstants, clock: DeviceClo
         norm_gain[after] = 1.0 + c.self_recal_settle_frac + (c.self_recal_jump_frac - c.self_recal_settle_frac) * decay
     scale = 1.0 + c.scale_sd * rng.normal(size=3)
     sd = c.noise_sd_mps2 * np.clip(1.0 + pose_field_at(spread, kin, t)[:, 0], *c.noise_factor_range)
+    extra: dict[str, np.ndarray] = {}
+    if c.vibration_mps2_per_mps > 0 or c.compliance_deg_per_mps2 > 0:
+        f, extra = _accel_motion(kin, sc, const, t, f, rng.spawn(1)[0])
     vals = f * scale * norm_gain[:, None] + c.bias_sd_mps2 * rng.normal(size=3) + sd[:, None] * rng.normal(size=f.shape)
     arr = arrival(t, c.latency_ms, c.latency_jitter_ms, rng)
-    return Stream("accel", t, dev, arr, vals)
+    return Stream("accel", t, dev, arr, vals, extra=extra)
+
+
+def _accel_motion(
+    kin: Kinematics, sc: Scenario, const: BenchConstants, t: np.ndarray, f: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Specific force [m/s^2] with mount compliance and vibration (see motion_terms)."""
+    c = sc.accel
+    R_imu = _interp_R(t, kin.t_ns, kin.R_base_imu)
+    a_dyn = f + np.einsum("nji,j->ni", R_imu, G_BASE)  # R^T a: the specific force less gravity's part
+    shaft_imu = const.R_tool_imu.T @ np.array([0.0, 0.0, 1.0])
+    f = np.einsum("nji,nj->ni", so3_exp(mt.compliance_tilt(a_dyn, shaft_imu, c.compliance_deg_per_mps2)), f)
+    dt = np.diff(kin.t_ns).mean() * 1e-9 if len(kin.t_ns) > 1 else 1e-3
+    v_tip = np.linalg.norm(np.gradient(kin.p_tip_base_m, dt, axis=0), axis=1)
+    rms = c.vibration_mps2_per_mps * np.interp(t, kin.t_ns, v_tip)
+    vib = mt.vibration(rng, t * 1e-9, rms, c.vibration_hz, c.rate_hz)
+    return f + vib, {"vibration_mps2": vib}
 
 
 def tof(kin: Kinematics, sc: Scenario, const: BenchConstants, clock: DeviceClock, rng: np.random.Generator) -> Stream:
@@ -193,11 +213,13 @@ def tof(kin: Kinematics, sc: Scenario, const: BenchConstants, clock: DeviceClock
     held so that its total latency is smoothed_latency_ms) and its validity."""
     c = sc.tof
     t, dev = clock.sample_times(c.rate_hz, int(kin.t_ns[-1]), rng)
-    R = _interp_R(t, kin.t_ns, kin.R_base_tool)
-    p = _interp(t, kin.t_ns, kin.p_tip_base_m)
-    rho_mm = const.tof_range_m(R, p) * 1e3
-    fld = PoseField(rng, 1, c.pose_sd_mm, np.radians(c.pose_corr_deg), c.pose_corr_m)
-    spread = PoseField(rng, 1, c.noise_pose_spread, np.radians(c.pose_corr_deg), c.pose_corr_m)
+    moving = c.integration_ms > 0 or c.surface_relief_mm > 0 or c.pose_corr_spread > 1.0
+    mrng = rng.spawn(1)[0] if moving else None
+    rho_mm = _tof_range_mm(kin, c, const, t, mrng)
+    corr_deg = mt.session_corr(mrng, c.pose_corr_deg, c.pose_corr_spread)
+    corr_m = mt.session_corr(mrng, c.pose_corr_m, c.pose_corr_spread)
+    fld = PoseField(rng, 1, c.pose_sd_mm, np.radians(corr_deg), corr_m)
+    spread = PoseField(rng, 1, c.noise_pose_spread, np.radians(corr_deg), corr_m)
     sd = c.noise_sd_mm * np.clip(1.0 + pose_field_at(spread, kin, t)[:, 0], *c.noise_factor_range)
     meas = rho_mm + pose_field_at(fld, kin, t)[:, 0] + ou_process(rng, t * 1e-9, c.repeat_sd_mm, c.repeat_tau_s)
     meas = meas + sd * rng.normal(size=len(t))
@@ -236,8 +258,39 @@ def tof(kin: Kinematics, sc: Scenario, const: BenchConstants, clock: DeviceClock
         arr,
         meas,
         status,
-        extra={"smoothed_mm": np.nan_to_num(smoothed), "smoothed_valid": sm_valid, "true_mm": rho_mm},
+        extra={
+            "smoothed_mm": np.nan_to_num(smoothed),
+            "smoothed_valid": sm_valid,
+            "true_mm": rho_mm,
+            "pose_corr": np.array([corr_deg, corr_m]),
+        },
     )
+
+
+def _tof_range_mm(
+    kin: Kinematics, c: Any, const: BenchConstants, t: np.ndarray, rng: np.random.Generator | None
+) -> np.ndarray:
+    """Range [mm] each sample reports before noise: the ray-plane range, averaged over the
+    ranging time and, with surface relief, over the beam footprint (see motion_terms)."""
+    offsets = mt.integration_offsets_ns(c.integration_ms)
+    relief = None
+    if rng is not None and c.surface_relief_mm > 0:
+        relief = mt.SurfaceRelief(rng, c.surface_relief_mm * 1e-3, c.surface_corr_mm * 1e-3)
+        axes = mt.plane_axes(const.tof_plane_normal_base)
+    out = np.zeros(len(t))
+    for o in offsets:
+        tq = np.clip(t + o, kin.t_ns[0], kin.t_ns[-1])
+        R = _interp_R(tq, kin.t_ns, kin.R_base_tool)
+        p = _interp(tq, kin.t_ns, kin.p_tip_base_m)
+        rho = const.tof_range_m(R, p)
+        if relief is not None:
+            src = p + np.einsum("nij,j->ni", R, const.tof_origin_tool_m)
+            beam = np.einsum("nij,j->ni", R, const.tof_beam_tool)
+            hit = src + np.nan_to_num(rho)[:, None] * beam
+            sd_fp = np.nan_to_num(rho) * np.tan(np.radians(c.beam_fov_deg) / 2.0) / 2.0
+            rho = rho + relief(hit @ axes.T, sd_fp) / np.maximum(beam @ const.tof_plane_normal_base, 1e-3)
+        out += rho
+    return out / len(offsets) * 1e3
 
 
 def mag(kin: Kinematics, sc: Scenario, const: BenchConstants, clock: DeviceClock, rng: np.random.Generator) -> Stream:

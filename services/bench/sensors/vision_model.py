@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from services.bench.scenario import Scenario
+from services.bench.sensors import vision_motion as vm
 from services.bench.sensors.calibration import BenchConstants
 from services.bench.sensors.device import Kinematics, _interp, _interp_R, arrival, pose_field_at
 from services.bench.sensors.pose_field import PoseField
@@ -107,6 +108,14 @@ def _visible_length_px(sc: Scenario, a_cam: np.ndarray, b_cam: np.ndarray, n_pts
     return np.where(both, np.nan_to_num(seg), 0.0).sum(1)
 
 
+def _junction_cam(kin: Kinematics, const: BenchConstants, t_ns: np.ndarray) -> np.ndarray:
+    """The true junction in the camera frame [m] at times t_ns (n, 3)."""
+    tq = np.clip(t_ns, kin.t_ns[0], kin.t_ns[-1])
+    R = _interp_R(tq, kin.t_ns, kin.R_base_tool)
+    J = _interp(tq, kin.t_ns, kin.p_tip_base_m) - const.junction_proximal_m * R[:, :, 2]
+    return (J - const.T_base_camera[:3, 3]) @ const.T_base_camera[:3, :3]
+
+
 def simulate_vision(kin: Kinematics, sc: Scenario, const: BenchConstants, rng: np.random.Generator) -> VisionFrames:
     """Vision observations for every camera frame of the session (true constants in, noisy
     observations out)."""
@@ -134,39 +143,94 @@ def simulate_vision(kin: Kinematics, sc: Scenario, const: BenchConstants, rng: n
     lo, hi = np.radians(v.wrong_seg_deg[0]), np.radians(v.wrong_seg_deg[1])
     which = rng.integers(0, 2, n)
     big = rng.uniform(lo, hi, n) * rng.choice([-1.0, 1.0], n)
+
+    # junction: depth error along the axis (white + pose-locked), lateral pixel noise
+    jfld = PoseField(rng, 1, v.junction_depth_pose_mm * 1e-3, np.radians(v.pose_corr_deg), v.pose_corr_m)
+    dj_pose = pose_field_at(jfld, kin, t)[:, 0]
+    dj_white = rng.normal(size=n) * v.junction_depth_white_mm * 1e-3
+    dj = dj_pose + dj_white
+    j_out = junction_outliers(rng, n, v.junction_outlier_prob, v.junction_outlier_mm, v.wrong_seg_prob > 0)
+
+    # image speed of the junction over one frame period
+    t_next = np.minimum(t + int(1e9 / cam.fps), kin.t_ns[-1])
+    u_next = _interp_R(t_next, kin.t_ns, kin.R_base_tool)[:, :, 2]
+    J_next = (_interp(t_next, kin.t_ns, kin.p_tip_base_m) - const.junction_proximal_m * u_next - c) @ A.T
+    speed = np.nan_to_num(np.linalg.norm(_project_undist(sc, J_next) - _project_undist(sc, J_c), axis=1))
+
+    # motion terms (exposure blur, speed, validated range, dropouts) from a child generator
+    moving = vm.motion_enabled(v)
+    mrng = rng.spawn(1)[0] if moving else None
+    blank = hide_burst = np.zeros(n, bool)
+    # the frame's own motion error in units of each gate measure's rest spread (zero at rest)
+    s_rest = v.metric_scale_rest
+    z_line = z_lat = z_junction = np.zeros(n)
+    extra: dict[str, np.ndarray] = {}
+    if mrng is not None:
+        mot = vm.image_motion(
+            lambda x: _project_undist(sc, x),
+            _junction_cam(kin, const, t - int(v.exposure_ms * 5e5)),
+            _junction_cam(kin, const, t + int(v.exposure_ms * 5e5)),
+            J_c,
+            u_c,
+            speed,
+        )
+        u_neutral = np.asarray(sc.motion.R_neutral())[:, 2]
+        depth_mm = ((p - const.rcm_base_m) * R[:, :, 2]).sum(1) * 1e3
+        tilt_deg = np.degrees(np.arccos(np.clip(R[:, :, 2] @ u_neutral, -1.0, 1.0)))
+        g = vm.range_growth(v, depth_mm, tilt_deg)
+        # white plane noise grows with the edge blur and the range; image motion adds its own
+        grow = np.sqrt(np.maximum((g * vm.edge_factor(v, mot)) ** 2 - 1.0, 0.0))
+        extra_w = mrng.normal(size=(n, 4)) * (np.radians(v.plane_white_deg) * grow)[:, None]
+        extra_w += mrng.normal(size=(n, 4)) * np.radians(v.plane_speed_deg_per_px * speed)[:, None]
+        ang = ang + extra_w + pose_ang * (g - 1.0)[:, None]
+        z_line = np.degrees(np.abs(extra_w[:, 0])) / (s_rest * v.gate_line_angle_deg)
+        z_lat = np.abs(extra_w[:, 1]) * cam.fx / (s_rest * v.gate_lateral_px)
+        dj_motion = vm.junction_axial_error_m(v, mot, g, mrng) + dj * (g - 1.0)
+        dj = dj + dj_motion
+        bias_m = v.junction_blur_bias * np.abs(mot.blur_axial_px) / mot.px_per_m_axial
+        z_junction = np.abs(dj_motion - bias_m) * mot.px_per_m_axial / (s_rest * v.gate_junction_px)
+        blank, hide_burst, bursts = vm.dropouts(v, t, mrng)
+        extra.update(
+            {
+                "blur_axial_px": mot.blur_axial_px,
+                "blur_across_px": mot.blur_across_px,
+                "range_growth": g,
+                "dropout_frame": blank,
+                "dropout_junction": hide_burst,
+            }
+        )
     ang[:, 0] += np.where(wrong & (which == 0), big, 0.0)
     ang[:, 2] += np.where(wrong & (which == 1), big, 0.0)
     n_l = vg.tilt_normal(n_l0, ang[:, 0], ang[:, 1], u_c)
     n_r = vg.tilt_normal(n_r0, ang[:, 2], ang[:, 3], u_c)
     p0 = vg.p0_from_normals(n_l, n_r, rho)
 
-    # junction: depth error along the axis (white + pose-locked), lateral pixel noise
-    jfld = PoseField(rng, 1, v.junction_depth_pose_mm * 1e-3, np.radians(v.pose_corr_deg), v.pose_corr_m)
-    dj = pose_field_at(jfld, kin, t)[:, 0] + rng.normal(size=n) * v.junction_depth_white_mm * 1e-3
-    j_out = junction_outliers(rng, n, v.junction_outlier_prob, v.junction_outlier_mm, v.wrong_seg_prob > 0)
     J_obs = J_c + (dj + j_out)[:, None] * u_c
+    if v.junction_across_mm > 0:
+        az = np.radians(v.junction_across_azimuth_deg)
+        across_tool = v.junction_across_mm * 1e-3 * np.array([np.cos(az), np.sin(az), 0.0])
+        J_obs = J_obs + (R @ across_tool) @ A.T
     uv = _project_undist(sc, J_obs) + rng.normal(size=(n, 2)) * v.junction_lateral_px
     ray = np.stack([(uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy, np.ones(n)], -1)
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
     cond = 1.0 - np.einsum("ij,ij->i", ray, u_c) ** 2
     j_in = _in_image(sc, J_c, margin_px=5.0)
     hidden = rng.random(n) < v.junction_hidden_prob
-    j_vis = j_in & ~hidden & (cond >= v.junction_min_sin2)
+    j_vis = j_in & ~hidden & ~hide_burst & (cond >= v.junction_min_sin2)
 
     # shaft visibility: the segment from the junction back to the port
     L_vis = _visible_length_px(sc, J_c, rcm_c)
     shaft_ok = (L_vis >= v.min_visible_px) & np.all(np.isfinite(n_l0), 1) & (J_c[:, 2] > 0)
 
-    # consistency gate: measures spread wider with image motion (blur, segmentation lag)
-    t_next = np.minimum(t + int(1e9 / cam.fps), kin.t_ns[-1])
-    u_next = _interp_R(t_next, kin.t_ns, kin.R_base_tool)[:, :, 2]
-    J_next = (_interp(t_next, kin.t_ns, kin.p_tip_base_m) - const.junction_proximal_m * u_next - c) @ A.T
-    speed = np.nan_to_num(np.linalg.norm(_project_undist(sc, J_next) - _project_undist(sc, J_c), axis=1))
+    # consistency gate: measures spread wider with image motion (blur, segmentation lag) and,
+    # with gate_quality_weight, add the frame's own motion error to their rest spread
     s = v.metric_scale_rest * (1.0 + v.metric_scale_per_px * np.minimum(speed, 500.0))
-    line_angle = np.abs(rng.normal(size=n)) * s * v.gate_line_angle_deg
-    lateral = np.abs(rng.normal(size=n)) * s * v.gate_lateral_px
-    jdiff = np.abs(rng.normal(size=n)) * s * v.gate_junction_px
-    iou = 1.0 - np.abs(rng.normal(size=n)) * s * (1.0 - v.gate_iou_min)
+    w = v.gate_quality_weight
+    z_iou = np.sqrt((z_line**2 + z_lat**2 + z_junction**2) / 3.0)
+    line_angle = vm.gate_measure(z_line, rng.normal(size=n), w) * s * v.gate_line_angle_deg
+    lateral = vm.gate_measure(z_lat, rng.normal(size=n), w) * s * v.gate_lateral_px
+    jdiff = vm.gate_measure(z_junction, rng.normal(size=n), w) * s * v.gate_junction_px
+    iou = 1.0 - vm.gate_measure(z_iou, rng.normal(size=n), w) * s * (1.0 - v.gate_iou_min)
     # a wrong segmentation that both labeler and network share still passes the gate
     line_angle[wrong] *= 0.3
     lateral[wrong] *= 0.3
@@ -178,10 +242,10 @@ def simulate_vision(kin: Kinematics, sc: Scenario, const: BenchConstants, rng: n
         1,
     )
     names = np.array(["gate:mask_iou", "gate:line_angle", "gate:lateral", "gate:junction"])
-    accepted = shaft_ok & ~fails.any(1)
+    accepted = shaft_ok & ~blank & ~fails.any(1)
     reasons = [
-        "" if a else ("shaft_not_visible" if not ok else str(names[f.argmax()]))
-        for a, ok, f in zip(accepted, shaft_ok, fails, strict=True)
+        "" if a else ("shaft_not_visible" if not ok else ("dropout" if b else str(names[f.argmax()])))
+        for a, ok, b, f in zip(accepted, shaft_ok, blank, fails, strict=True)
     ]
     cap = arrival(t, cam.latency_ms, cam.latency_jitter_ms, rng)
     proc_ms = np.clip(v.processing_ms + rng.normal(size=n) * v.processing_jitter_ms, 0.3 * v.processing_ms, None)
@@ -207,5 +271,12 @@ def simulate_vision(kin: Kinematics, sc: Scenario, const: BenchConstants, rng: n
         junction_diff_px=jdiff,
         line_residual_px=np.abs(rng.normal(size=n)) * 0.25 + 0.1,
         wrong_segmentation=wrong,
-        extra={"image_speed_px": speed, "junction_cond": cond, "visible_px": L_vis, "junction_outlier_m": j_out},
+        extra={
+            "image_speed_px": speed,
+            "junction_cond": cond,
+            "visible_px": L_vis,
+            "junction_outlier_m": j_out,
+            "junction_depth_err_m": dj,
+            **extra,
+        },
     )

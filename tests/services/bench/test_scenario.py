@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from services.bench.profiles import PROFILES
 from services.bench.scenario import BUILTIN, Scenario, load_scenario, scenario_dict
 from tiplog.config import ConfigError
 
@@ -32,7 +33,9 @@ def test_defaults_are_the_papers():
 def test_overrides_strings_and_dict():
     s = load_scenario("teleop", ["tof.noise_sd_mm=4.5", "motion.depth_mm=135"])
     assert s.tof.noise_sd_mm == 4.5 and s.motion.depth_mm == 135
-    assert s.motion.camera_distance_m == 0.085  # scenario camera defaults survive a partial motion override
+    # the profile's camera survives a partial motion override, and so do the built-in defaults under clean
+    assert s.motion.camera_distance_m == PROFILES["paper"]["motion"]["camera_distance_m"]
+    assert load_scenario("teleop", ["profile=clean", "motion.depth_mm=135"]).motion.camera_distance_m == 0.085
     s = load_scenario("teleop", {"accel.self_recal": True})
     assert s.accel.self_recal
 

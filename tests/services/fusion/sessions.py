@@ -16,12 +16,18 @@ from tiplog.mcap_io import McapWriter, read_messages, read_metadata
 _CACHE: dict[tuple, Path] = {}
 
 
-def bench_session(tmp_path_factory, scenario: str = "teleop", seed: int = 11, duration_s: float = 9.0) -> Path:
-    key = (scenario, seed, duration_s)
+def bench_session(
+    tmp_path_factory, scenario: str = "teleop", seed: int = 11, duration_s: float = 9.0, profile: str | None = None
+) -> Path:
+    """A bench session, generated once per test run; `profile` overrides the scenario's bench
+    profile (the default is the paper's conditions)."""
+    key = (scenario, seed, duration_s, profile)
     if key not in _CACHE:
         d = tmp_path_factory.mktemp(f"fusion_{scenario}_{seed}")
         path = d / f"{scenario}.mcap"
         args = ["sim", "generate", "--scenario", scenario, "--seed", str(seed), "--duration", str(duration_s)]
+        if profile is not None:
+            args += ["--set", f"profile={profile}"]
         assert tiplog_main([*args, "--out", str(path), "--quiet"]) == 0
         _CACHE[key] = path
     return _CACHE[key]

@@ -21,7 +21,9 @@ from tiplog.mcap_io import read_messages, read_metadata
 
 def _generate(path, tilt_deg: float) -> None:
     args = ["sim", "generate", "--scenario", "sweeps", "--seed", "21", "--duration", "30"]
-    args += ["--set", f"accel.pose_tilt_sd_deg={tilt_deg}", "--out", str(path), "--quiet"]
+    # the clean profile isolates the one error the map is for; on the paper profile (seed 21)
+    # its correction still follows the error but the tip no longer gains from it
+    args += ["--set", "profile=clean", "--set", f"accel.pose_tilt_sd_deg={tilt_deg}", "--out", str(path), "--quiet"]
     assert tiplog_main(args) == 0
 
 

@@ -37,3 +37,14 @@ def test_accuracy_benchmark_runs(tmp_path):
     for tier in ("pixel", "model"):
         s = r["pooled"][tier]
         assert s["frames"] > 0 and 0.0 <= s["acceptance"] <= 1.0
+    bins = r["by_speed"]
+    assert sum(b["pixel"]["frames"] for b in bins) == r["pooled"]["pixel"]["frames"]
+    assert sum(b["model"]["frames"] for b in bins) == r["pooled"]["model"]["frames"]
+
+
+def test_accuracy_benchmark_refuses_a_bad_override(capsys):
+    from benchmarks import vision_accuracy
+
+    assert vision_accuracy.main(["--seeds", "1", "--set", "render.exposure_ms=-3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "render.exposure_ms" in err[0]

@@ -82,7 +82,9 @@ def test_vision_run_with_two_workers_is_the_same_session(recording, tmp_path):
 
 
 def test_channels_last_network_matches_the_plain_layout(rendered, camera):
-    """Tolerance: probabilities within 1e-4; observations the same but for float rounding."""
+    """Tolerance: probabilities within 1e-4; observations the same but for float rounding, which
+    can flip a mask pixel that sits at the 0.5 threshold: the mask's measures within 1e-3, the
+    network's junction (found on the thresholded mask) within 0.05 px."""
     seg_cl, _ = load_checkpoint(DEFAULT_WEIGHTS, "cpu")
     assert seg_cl.memory_format == torch.channels_last
     seg_plain = Segmenter(load_checkpoint(DEFAULT_WEIGHTS, "cpu")[0].model, torch.device("cpu"), channels_last=False)
@@ -96,6 +98,8 @@ def test_channels_last_network_matches_the_plain_layout(rendered, camera):
             ob.reject_reason,
             ob.junction_visible,
         )
-        for f in ("mask_iou", "line_angle_deg", "lateral_px", "junction_diff_px", "junction_u_px"):
+        for f in ("mask_iou", "line_angle_deg", "lateral_px"):
             assert getattr(oa, f) == pytest.approx(getattr(ob, f), abs=1e-3), f
+        for f in ("junction_diff_px", "junction_u_px"):
+            assert getattr(oa, f) == pytest.approx(getattr(ob, f), abs=0.05), f
         assert (oa.n_left.x, oa.n_left.y, oa.n_left.z) == (ob.n_left.x, ob.n_left.y, ob.n_left.z)  # labeler only

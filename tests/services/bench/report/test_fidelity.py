@@ -31,8 +31,12 @@ def test_rows(session_file):
         "vision acceptance, free motion",
         "trocar-gate pass, free motion",
         "gyro drift about the shaft, roll sweep",
+        "vision junction depth error, fast over slow",
+        "longest run of rejected frames, free motion",
+        "junction rays failing 1-(d.u)^2 >= 0.45",
     ):
         assert name in rows
+    assert rep["profile"] == "paper" and "profile paper" in format_table(rep).splitlines()[0]
     for r in rep["rows"]:
         assert r["status"] in ("PASS", "FAIL", "n/a", "info")
         assert r["lo"] <= r["hi"]
@@ -44,6 +48,19 @@ def test_rows(session_file):
     assert rows["gyro drift about the shaft, roll sweep"]["status"] == "n/a"  # no roll sweep here
     text = format_table(rep)
     assert "PASS" in text and "paper" in text
+
+
+def test_motion_rows_follow_the_session(tmp_path):
+    from services.bench.report.data import load
+    from services.bench.report.motion import motion_rows
+
+    path = tmp_path / "t.mcap"
+    generate(load_scenario("teleop", ["vision.dropout_rate_per_min=20"]), path, seed=4, duration_s=30.0)
+    rows = {r.name: r for r in motion_rows(load(path))}
+    longest = rows["longest run of rejected frames, free motion"]
+    assert longest.status == "info" and longest.value >= 0.5  # dropout bursts last 0.5 s or more
+    assert rows["rejected frames in runs of 0.5 s or more"].value > 0
+    assert rows["junction rays failing 1-(d.u)^2 >= 0.45"].status in ("PASS", "FAIL", "n/a")
 
 
 def test_cli_report_json(session_file, capsys):
