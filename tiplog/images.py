@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 
@@ -20,3 +21,16 @@ def raw_image(img: np.ndarray, stamp_ns: int, frame_id: str = "camera", encoding
     )
     m.timestamp.FromNanoseconds(int(stamp_ns))
     return m
+
+
+def decompress(msg: CompressedImage) -> RawImage:
+    """A foxglove.CompressedImage (JPEG or PNG: an archived camera frame) as the rgb8 RawImage
+    it was made from, with the same stamp and frame; ValueError when it does not decode."""
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"not a decodable {msg.format or 'image'} ({len(msg.data)} bytes)")
+    out = raw_image(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), 0, frame_id=msg.frame_id)
+    out.timestamp.CopyFrom(msg.timestamp)
+    return out

@@ -119,9 +119,14 @@ def format_status(st, headline: str = "") -> str:  # type: ignore[no-untyped-def
     if st.alarm:
         lines.append(f"ALARM: {st.alarm}")
     if st.topics:
-        lines.append(f"{'topic':<24}{'received':>10}{'written':>10}{'dropped':>10}{'gaps':>8}")
+        lines.append(
+            f"{'topic':<24} {'received':>10} {'written':>10} {'dropped':>10} {'seq gaps':>10} {'time gaps':>10} {'gap s':>8}"
+        )
         for t, c in sorted(st.topics.items()):
-            lines.append(f"{t:<24}{c.received:>10}{c.written:>10}{c.dropped:>10}{c.upstream_gaps:>8}")
+            lines.append(
+                f"{t:<24} {c.received:>10} {c.written:>10} {c.dropped:>10} {c.upstream_gaps:>10} {c.time_gaps:>10} "
+                f"{c.time_gap_s:>8.2f}"
+            )
     return "\n".join(lines)
 
 

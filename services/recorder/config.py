@@ -23,6 +23,12 @@ class RecorderConfig(ServiceConfig):
     # Topics left out ("camera/image"; "camera/" leaves out every camera/* topic): the demo
     # records everything but the raw frames (41 MB/s), whose compressed preview is kept.
     exclude_topics: list[str] = Field(default_factory=list)
+    # Camera frames (foxglove.RawImage on `camera_topics`) archived as JPEG
+    # foxglove.CompressedImage on `<topic>/compressed` (services/recorder/camera_archive.py), or
+    # as they come ("raw": several hundred GB per hour at 30 frames/s).
+    camera_archive: Literal["jpeg", "raw"] = "jpeg"
+    camera_topics: list[str] = Field(default_factory=lambda: ["camera/image"])
+    camera_jpeg_quality: int = Field(90, ge=1, le=100)
     # lz4 by default: camera frames are noise-like and dominate the volume; zstd costs several
     # times the CPU for little gain on them (see benchmarks/recorder_throughput.py).
     compression: Literal["zstd", "lz4", "none"] = "lz4"
@@ -36,6 +42,9 @@ class RecorderConfig(ServiceConfig):
     max_file_duration_s: float = Field(900.0, ge=0.0)
     # Refuse to start, and stop, when free space on the target falls below this.
     min_free_bytes: int = Field(2 * GiB, ge=0)
+    # Alarm (recording goes on) when the free space above that reserve holds fewer minutes of
+    # case than this at the current write rate; the alarm says how many.
+    warn_minutes_left: float = Field(30.0, ge=0.0)
     disk_check_period_s: float = Field(1.0, gt=0.0, le=60.0)
     # Bound on what waits for the writer thread; beyond it messages are dropped and counted.
     max_queue_bytes: int = Field(512 * MiB, ge=1 * MiB)

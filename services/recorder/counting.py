@@ -8,6 +8,7 @@ import collections
 import threading
 from dataclasses import dataclass
 
+from services.recorder.timegaps import TimeGaps
 from tiplog.bus import SampleInfo
 
 
@@ -17,13 +18,17 @@ class TopicCounts:
     written: int = 0
     dropped: int = 0
     upstream_gaps: int = 0
+    time_gaps: int = 0
+    time_gap_s: float = 0.0
 
-    def as_dict(self) -> dict[str, int]:
+    def as_dict(self) -> dict[str, int | float]:
         return {
             "received": self.received,
             "written": self.written,
             "dropped": self.dropped,
             "upstream_gaps": self.upstream_gaps,
+            "time_gaps": self.time_gaps,
+            "time_gap_s": round(self.time_gap_s, 3),
         }
 
 
@@ -36,6 +41,7 @@ class Counting:
         self._lock = threading.Lock()
         self._counts: dict[str, TopicCounts] = collections.defaultdict(TopicCounts)
         self._last_seq: dict[tuple[str, int], int] = {}
+        self._arrivals: dict[str, TimeGaps] = collections.defaultdict(TimeGaps)
         self._queued_bytes = 0
         self._queued_msgs = 0
 
@@ -58,6 +64,9 @@ class Counting:
                 if last is not None and info.seq > last + 1:
                     c.upstream_gaps += info.seq - last - 1
                 self._last_seq[k] = info.seq if last is None else max(last, info.seq)
+            gaps = self._arrivals[info.topic]
+            if gaps.add(info.receive_ns):
+                c.time_gaps, c.time_gap_s = gaps.count, gaps.missing_s
             if self._queued_bytes + size > self.max_queue_bytes or self._queued_msgs >= self.max_queue_messages:
                 c.dropped += 1
                 return False
@@ -109,7 +118,8 @@ class Counting:
         with self._lock:
             self._counts.clear()
             self._last_seq.clear()
+            self._arrivals.clear()
 
-    def snapshot(self) -> dict[str, dict[str, int]]:
+    def snapshot(self) -> dict[str, dict[str, int | float]]:
         with self._lock:
             return {t: c.as_dict() for t, c in sorted(self._counts.items())}

@@ -1,8 +1,12 @@
 """What a recording holds: duration, topics, types, rates, counts, sequence gaps, metadata.
 
-Gaps come from the MCAP `sequence` field (the publisher's bus sequence number): a forward
-jump of more than one on a topic counts the samples in between as lost upstream; a jump
-backwards starts a new publisher (a restarted service) and counts nothing.
+Sequence gaps come from the MCAP `sequence` field (each publisher's bus sequence number).
+A file does not say which publisher wrote a message, and two publishers may share a topic
+(two gateways, a restarted service): each message continues the sequence whose last number
+is the nearest below its own, a message below every known sequence starts a new one (a
+restarted publisher counts nothing), and a forward jump of more than one within a sequence
+counts the samples in between as lost upstream. Time gaps (`services.recorder.timegaps`) come
+from the log times against the topic's own rate: an outage across a restart shows there.
 """
 
 from __future__ import annotations
@@ -13,10 +17,57 @@ from typing import Any
 
 from mcap.stream_reader import StreamReader
 
+from services.recorder.timegaps import TimeGaps
 from tiplog.mcap_check import DamagedRecord, metadata_records
 from tiplog.mcap_io import open_reader
 
 NS_PER_S = 1_000_000_000
+MAX_SEQUENCES = 16  # publishers followed per topic at once (the least recently continued is forgotten)
+
+
+@dataclass
+class SequenceGaps:
+    """Samples missing per sequence on one topic, with several publishers interleaved.
+
+    A message continues the sequence whose last number is the nearest below its own, unless
+    the jump is more samples than the time since that sequence's last message could hold at
+    the topic's rate (twice over, plus `slack`): then it starts a sequence of its own (another
+    publisher further along), as does a message below every known sequence."""
+
+    slack: int = 50
+    gaps: int = 0
+    events: int = 0
+    _last: dict[int, tuple[int, int]] = field(default_factory=dict)  # last number -> (order of use, log ns)
+    _tick: int = 0
+    _max_open: int = 0
+
+    @property
+    def sequences(self) -> int:
+        """Most sequences followed at once (at most MAX_SEQUENCES): publishers sharing the
+        topic, or a publisher's restarts."""
+        return self._max_open
+
+    def add(self, seq: int, log_ns: int = 0, rate_hz: float = 0.0) -> None:
+        self._tick += 1
+        if seq in self._last:  # a repeat: nothing new
+            self._last[seq] = (self._tick, log_ns)
+            return
+        below = [s for s in self._last if s < seq]
+        prev = max(below) if below else None
+        if prev is not None:
+            dt_s = max(0.0, (log_ns - self._last[prev][1]) / NS_PER_S)
+            allowed = 2.0 * dt_s * rate_hz + self.slack if rate_hz > 0 else 1000
+            if seq - prev - 1 > allowed:
+                prev = None  # too far ahead to be this sequence's next
+        if prev is not None:
+            del self._last[prev]
+            if seq > prev + 1:
+                self.gaps += seq - prev - 1
+                self.events += 1
+        elif len(self._last) >= MAX_SEQUENCES:
+            del self._last[min(self._last, key=lambda s: self._last[s][0])]
+        self._last[seq] = (self._tick, log_ns)
+        self._max_open = max(self._max_open, len(self._last))
 
 
 @dataclass
@@ -26,10 +77,14 @@ class TopicInfo:
     count: int = 0
     first_ns: int | None = None
     last_ns: int | None = None
-    gaps: int = 0  # samples missing according to the sequence numbers
-    gap_events: int = 0
     bytes: int = 0
-    _last_seq: int | None = field(default=None, repr=False)
+    seq: SequenceGaps = field(default_factory=SequenceGaps, repr=False)
+    time: TimeGaps = field(default_factory=TimeGaps, repr=False)
+
+    @property
+    def gaps(self) -> int:
+        """Samples missing according to the sequence numbers."""
+        return self.seq.gaps
 
     @property
     def rate_hz(self) -> float:
@@ -42,11 +97,8 @@ class TopicInfo:
         self.bytes += size
         self.first_ns = log_ns if self.first_ns is None else min(self.first_ns, log_ns)
         self.last_ns = log_ns if self.last_ns is None else max(self.last_ns, log_ns)
-        last = self._last_seq
-        if last is not None and seq > last + 1:
-            self.gaps += seq - last - 1
-            self.gap_events += 1
-        self._last_seq = seq
+        self.time.add(log_ns)
+        self.seq.add(seq, log_ns, self.time.expected_hz)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -57,14 +109,16 @@ class TopicInfo:
             "last_ns": self.last_ns,
             "bytes": self.bytes,
             "gaps": self.gaps,
-            "gap_events": self.gap_events,
+            "gap_events": self.seq.events,
+            "sequences": self.seq.sequences,
+            **self.time.as_dict(),
         }
 
 
 def inspect(path: str | Path) -> dict[str, Any]:
     """Everything `tiplog info` shows, as a JSON-ready dict."""
     path = Path(path)
-    topics: dict[int, TopicInfo] = {}
+    topics: dict[str, TopicInfo] = {}  # one topic may have several channels (several writers)
     metadata: dict[str, dict[str, str]] = {}
     attachments: list[dict[str, Any]] = []
     indexed = True
@@ -79,9 +133,9 @@ def inspect(path: str | Path) -> dict[str, Any]:
         f.seek(0)
         try:
             for schema, channel, message in _messages(f, indexed, metadata, attachments):
-                ti = topics.get(channel.id)
+                ti = topics.get(channel.topic)
                 if ti is None:
-                    ti = topics[channel.id] = TopicInfo(channel.topic, schema.name if schema else "")
+                    ti = topics[channel.topic] = TopicInfo(channel.topic, schema.name if schema else "")
                 ti.add(message.log_time, message.sequence, len(message.data))
         except Exception as e:  # a truncated tail: report what was read
             metadata["_read_error"] = {"error": f"{type(e).__name__}: {e}"}
@@ -95,9 +149,7 @@ def inspect(path: str | Path) -> dict[str, Any]:
                 metadata["_read_error"] = {"error": f"{type(e).__name__}: {e}", "note": f"{path}: {e}"}
             for a in reader.iter_attachments():
                 attachments.append({"name": a.name, "media_type": a.media_type, "bytes": len(a.data)})
-    by_topic: dict[str, TopicInfo] = {}
-    for ti in topics.values():  # one topic may have several channels (several writers)
-        by_topic.setdefault(ti.topic, ti)
+    by_topic = topics
     firsts = [t.first_ns for t in by_topic.values() if t.first_ns is not None]
     lasts = [t.last_ns for t in by_topic.values() if t.last_ns is not None]
     start, end = (min(firsts), max(lasts)) if firsts else (None, None)
@@ -110,6 +162,7 @@ def inspect(path: str | Path) -> dict[str, Any]:
         "duration_s": (end - start) / NS_PER_S if start is not None and end is not None else 0.0,
         "messages": sum(t.count for t in by_topic.values()),
         "gaps": sum(t.gaps for t in by_topic.values()),
+        "time_gaps": sum(t.time.count for t in by_topic.values()),
         "topics": {t: ti.as_dict() for t, ti in sorted(by_topic.items())},
         "metadata": metadata,
         "attachments": attachments,
@@ -149,14 +202,11 @@ def format_info(info: dict[str, Any]) -> str:
             if info["start_ns"] is not None
             else "duration:  - (no complete message could be read)"
         ),
-        f"messages:  {info['messages']}   gaps (from sequence): {info['gaps']}",
+        f"messages:  {info['messages']}   sequence gaps: {info['gaps']}   "
+        f"time gaps: {info.get('time_gaps', 0)} (intervals over 10x the topic's own)",
         "",
-        f"{'topic':<22}{'type':<36}{'count':>9}{'rate Hz':>10}{'MiB':>9}{'gaps':>7}",
     ]
-    for t, ti in info["topics"].items():
-        out.append(
-            f"{t:<22}{ti['type']:<36}{ti['count']:>9}{ti['rate_hz']:>10.2f}{ti['bytes'] / 2**20:>9.2f}{ti['gaps']:>7}"
-        )
+    out += _topic_table(info["topics"])
     if info["attachments"]:
         out.append("")
         out.append("attachments: " + ", ".join(f"{a['name']} ({a['bytes']} B)" for a in info["attachments"]))
@@ -169,3 +219,32 @@ def format_info(info: dict[str, Any]) -> str:
                 v = v if len(v) <= 100 else v[:97] + "..."
                 out.append(f"    {k}: {v}")
     return "\n".join(out)
+
+
+def _topic_table(topics: dict[str, dict[str, Any]]) -> list[str]:
+    """The per-topic table, each column as wide as its widest entry (a large count never runs
+    into its neighbour)."""
+    head = ["topic", "type", "count", "rate Hz", "expected", "MiB", "seq gaps", "time gaps", "gap s", "longest s"]
+    rows = [
+        [
+            t,
+            ti["type"],
+            str(ti["count"]),
+            f"{ti['rate_hz']:.2f}",
+            f"{ti.get('expected_hz', 0.0):.2f}",
+            f"{ti['bytes'] / 2**20:.2f}",
+            str(ti["gaps"]),
+            str(ti.get("time_gaps", 0)),
+            f"{ti.get('time_gap_s', 0.0):.2f}",
+            f"{ti.get('longest_gap_s', 0.0):.2f}",
+        ]
+        for t, ti in topics.items()
+    ]
+    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(
+            c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths, strict=True))
+        )
+
+    return [line(head), *(line(r) for r in rows)]

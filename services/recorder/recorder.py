@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from services.recorder.admission import QUARANTINE_TYPE, Admission, quarantine_record, quarantine_topic
+from services.recorder.camera_archive import CameraArchive
 from services.recorder.config import RecorderConfig
 from services.recorder.counting import Counting
 from services.recorder.mcap_file import Opener, RecordingFile, open_file
@@ -50,6 +51,31 @@ class _Command:
 
 
 _STOP = object()
+
+
+LOW_DISK = "low disk: "  # the alarm while recording goes on, before the reserve stops it
+
+
+@dataclass
+class WriteRate:
+    """The recorder's write rate (bytes per second, a running mean over disk checks) and the
+    minutes of case the free space above the reserve holds at that rate."""
+
+    alpha: float = 0.2
+    rate_bps: float = 0.0
+    _t: float | None = None
+    _bytes: int = 0
+
+    def update(self, t_s: float, total_bytes: int) -> None:
+        if self._t is not None and t_s > self._t and total_bytes >= self._bytes:
+            inst = (total_bytes - self._bytes) / (t_s - self._t)
+            self.rate_bps = inst if self.rate_bps == 0.0 else self.rate_bps + self.alpha * (inst - self.rate_bps)
+        self._t, self._bytes = t_s, total_bytes
+
+    def minutes_left(self, free_bytes: int, reserve_bytes: int) -> float | None:
+        if self.rate_bps <= 0 or free_bytes < 0:
+            return None
+        return max(0.0, free_bytes - reserve_bytes) / self.rate_bps / 60.0
 
 
 class Recorder(SessionFiles):
@@ -78,6 +104,10 @@ class Recorder(SessionFiles):
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._counting = Counting(config.max_queue_bytes, config.max_queue_messages)
         self._admission = Admission()  # used on the writer thread only
+        self.camera_kept_raw = 0  # camera frames that could not be compressed, written as they came
+        self._camera = (
+            CameraArchive(config.camera_topics, config.camera_jpeg_quality) if config.camera_archive == "jpeg" else None
+        )
         # autostart=always: the start command is queued first, and every sample from now on
         # (the subscription may already be declared) queues behind it and lands in the first
         # file: a publisher that sees the subscription may start at once (`tiplog replay` does).
@@ -88,6 +118,7 @@ class Recorder(SessionFiles):
         self._faulted = False  # a session ended on a fault: keep counting drops until stop/start
         self.state = S.RECORDER_STATE_IDLE
         self.alarm = ""
+        self.disk = WriteRate()
         self.session = ""
         self.file_index = 0
         self._file: RecordingFile | None = None
@@ -227,8 +258,16 @@ class Recorder(SessionFiles):
         if reason is not None:
             self._reject(f, payload, info, reason)
             return
+        topic, type_name = info.topic, info.type_name
+        if self._camera is not None and self._camera.wants(topic, type_name):
+            try:
+                topic, type_name, payload = self._camera.encode(topic, payload)
+            except ValueError as e:  # kept as it came rather than lost
+                self.camera_kept_raw += 1
+                if self.camera_kept_raw == 1:
+                    log.warning("a camera frame on %s is kept raw: %s", topic, e)
         try:
-            f.write(info.topic, info.type_name, payload, info.receive_ns, info.publish_ns, info.seq)
+            f.write(topic, type_name, payload, info.receive_ns, info.publish_ns, info.seq)
         except OSError as e:
             self._counting.drop(info.topic)
             self._fault(f"write failed: {e}")
@@ -284,10 +323,21 @@ class Recorder(SessionFiles):
 
     def _check_disk(self) -> None:
         self._free_bytes = free = self._free()
+        self.disk.update(time.monotonic(), self._bytes_before + (self._file.bytes_written if self._file else 0))
+        left = self.disk.minutes_left(free, self.config.min_free_bytes)
+        at = f"{self.disk.rate_bps / 1e6:.1f} MB/s" if self.disk.rate_bps else "an unknown rate"
         if 0 <= free < self.config.min_free_bytes:
             self._fault(
-                f"free space {free / 2**20:.0f} MiB below the reserve of {self.config.min_free_bytes / 2**20:.0f} MiB"
+                f"free space {free / 2**20:.0f} MiB below the reserve of {self.config.min_free_bytes / 2**20:.0f} MiB "
+                f"(writing {at})"
             )
+        elif left is not None and left < self.config.warn_minutes_left:
+            alarm = f"{LOW_DISK}{free / 2**30:.1f} GiB free: about {left:.0f} min of case left at {at}"
+            if not self.alarm.startswith(LOW_DISK):
+                log.warning("recorder alarm: %s", alarm)
+            self.alarm = alarm
+        elif self.alarm.startswith(LOW_DISK):
+            self.alarm = ""
 
     def _check_split(self) -> None:
         f, cfg = self._file, self.config

@@ -11,9 +11,11 @@ import numpy as np
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from tiplog.camera_model import CameraModel
+from tiplog.images import decompress
 from tiplog.mcap_io import read_messages
 
 ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True)}
+COMPRESSED_TOPIC = "camera/image/compressed"  # the recorder's archive of camera/image
 
 
 class FrameError(ValueError):
@@ -49,13 +51,15 @@ def decode_frame(msg: RawImage, camera: CameraModel | None) -> np.ndarray:
 
 def recording_frames(path: str | Path, every: int = 1) -> Iterator[tuple[int, int, RawImage, CameraModel | None]]:
     """(index, log_time_ns, RawImage, latest camera model or None) for every `every`-th
-    camera/image of a recording, in log-time order."""
+    camera frame of a recording, in log-time order: camera/image as it was sent, or
+    camera/image/compressed (the recorder's JPEG archive) decoded."""
     camera: CameraModel | None = None
     k = 0
-    for rec in read_messages(path, ["camera/image", "camera/info"]):
+    for rec in read_messages(path, ["camera/image", COMPRESSED_TOPIC, "camera/info"]):
         if rec.topic == "camera/info":
             camera = CameraModel.from_calibration(rec.message)
             continue
         if k % every == 0:
-            yield k, rec.log_time_ns, rec.message, camera
+            frame = decompress(rec.message) if rec.topic == COMPRESSED_TOPIC else rec.message
+            yield k, rec.log_time_ns, frame, camera
         k += 1

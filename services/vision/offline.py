@@ -1,7 +1,8 @@
 """`tiplog vision run IN.mcap --out OUT.mcap`: every frame of a recording through the same
 pipeline as the live service. The output holds vision/observation (logged at each frame's
 capture stamp, which its header carries unchanged) beside every other topic and metadata record
-of the input except camera/image, so that it is a complete session for offline fusion. On the
+of the input except the camera frames (camera/image, or camera/image/compressed: the
+recorder's JPEG archive, decoded), so that it is a complete session for offline fusion. On the
 CPU the observations are deterministic (all but the processing time), whatever the number of
 workers."""
 
@@ -12,20 +13,23 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf import any_pb2  # noqa: F401  (the recorder's _rejected/ channels are copied too)
 
-from services.vision.frames import FrameError, decode_frame
+from services.vision.frames import COMPRESSED_TOPIC, FrameError, decode_frame
 from services.vision.network import load_checkpoint
 from services.vision.overlap import ordered_map
 from services.vision.pipeline import Pipeline
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.camera_model import CameraModel
+from tiplog.images import decompress
 from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary
 from tiplog.userio import UserError
 from tiplog.v1 import vision_pb2
 
 OBS_TYPE = vision_pb2.VisionObservation.DESCRIPTOR.full_name
+FRAME_TOPICS = ("camera/image", COMPRESSED_TOPIC)
 
 
 def _calibration(src: Path, calib_path: Path | None) -> Calibration:
@@ -41,7 +45,7 @@ def _frame_count(src: Path) -> int:
     summary = read_summary(src)
     if summary is None or summary.statistics is None:
         return 0
-    ids = [c.id for c in summary.channels.values() if c.topic == "camera/image"]
+    ids = [c.id for c in summary.channels.values() if c.topic in FRAME_TOPICS]
     return sum(summary.statistics.channel_message_counts.get(i, 0) for i in ids)
 
 
@@ -80,8 +84,8 @@ def run_file(
         k = 0
         for schema, channel, message in messages:
             topic = channel.topic
-            if topic == "camera/image":
-                yield ("frame", k, message, camera)
+            if topic in FRAME_TOPICS:
+                yield ("frame", k, (topic, message), camera)
                 k += 1
             elif topic != "vision/observation":  # the bench's measurement-tier stand-in is replaced
                 if topic == "camera/info":
@@ -89,10 +93,19 @@ def run_file(
                 yield ("copy", schema, channel, message)
 
     def observe(item: tuple) -> vision_pb2.VisionObservation:
-        _, k, message, camera = item
-        msg = RawImage.FromString(message.data)
-        stamp = msg.timestamp.ToNanoseconds()
+        _, k, (topic, message), camera = item
+        if topic == COMPRESSED_TOPIC:
+            compressed = CompressedImage.FromString(message.data)
+            stamp = compressed.timestamp.ToNanoseconds()
+        else:
+            msg = RawImage.FromString(message.data)
+            stamp = msg.timestamp.ToNanoseconds()
         try:
+            if topic == COMPRESSED_TOPIC:
+                try:
+                    msg = decompress(compressed)
+                except ValueError as e:
+                    raise FrameError("bad_data", str(e)) from None
             if camera is None:
                 raise FrameError("no_camera_info", "camera/image before any camera/info")
             obs = pipe.process(decode_frame(msg, camera), camera, stamp, k).obs

@@ -25,7 +25,7 @@ _sym_db = _symbol_database.Default()
 from tiplog.v1 import common_pb2 as tiplog_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18tiplog/v1/recorder.proto\x12\ttiplog.v1\x1a\x16tiplog/v1/common.proto\"X\n\x0bTopicCounts\x12\x10\n\x08received\x18\x01 \x01(\x04\x12\x0f\n\x07written\x18\x02 \x01(\x04\x12\x0f\n\x07\x64ropped\x18\x03 \x01(\x04\x12\x15\n\rupstream_gaps\x18\x04 \x01(\x04\"\xdb\x02\n\x0eRecorderStatus\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12\'\n\x05state\x18\x02 \x01(\x0e\x32\x18.tiplog.v1.RecorderState\x12\x0c\n\x04path\x18\x03 \x01(\t\x12\x15\n\rbytes_written\x18\x04 \x01(\x04\x12\x12\n\nfree_bytes\x18\x05 \x01(\x04\x12\x12\n\nduration_s\x18\x06 \x01(\x01\x12\r\n\x05\x61larm\x18\x07 \x01(\t\x12\x35\n\x06topics\x18\x08 \x03(\x0b\x32%.tiplog.v1.RecorderStatus.TopicsEntry\x12\x12\n\nfile_index\x18\t \x01(\r\x12\x0f\n\x07session\x18\n \x01(\t\x1a\x45\n\x0bTopicsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12%\n\x05value\x18\x02 \x01(\x0b\x32\x16.tiplog.v1.TopicCounts:\x02\x38\x01\"]\n\x0fRecorderCommand\x12)\n\x06\x61\x63tion\x18\x01 \x01(\x0e\x32\x19.tiplog.v1.RecorderAction\x12\x0e\n\x06reason\x18\x02 \x01(\t\x12\x0f\n\x07session\x18\x03 \x01(\t\"W\n\rRecorderReply\x12\n\n\x02ok\x18\x01 \x01(\x08\x12\x0f\n\x07message\x18\x02 \x01(\t\x12)\n\x06status\x18\x03 \x01(\x0b\x32\x19.tiplog.v1.RecorderStatus*\x80\x01\n\rRecorderState\x12\x1e\n\x1aRECORDER_STATE_UNSPECIFIED\x10\x00\x12\x17\n\x13RECORDER_STATE_IDLE\x10\x01\x12\x1c\n\x18RECORDER_STATE_RECORDING\x10\x02\x12\x18\n\x14RECORDER_STATE_ERROR\x10\x03*\xb7\x01\n\x0eRecorderAction\x12\x1f\n\x1bRECORDER_ACTION_UNSPECIFIED\x10\x00\x12\x19\n\x15RECORDER_ACTION_START\x10\x01\x12\x18\n\x14RECORDER_ACTION_STOP\x10\x02\x12\x19\n\x15RECORDER_ACTION_SPLIT\x10\x03\x12\x18\n\x14RECORDER_ACTION_MARK\x10\x04\x12\x1a\n\x16RECORDER_ACTION_STATUS\x10\x05\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18tiplog/v1/recorder.proto\x12\ttiplog.v1\x1a\x16tiplog/v1/common.proto\"\x7f\n\x0bTopicCounts\x12\x10\n\x08received\x18\x01 \x01(\x04\x12\x0f\n\x07written\x18\x02 \x01(\x04\x12\x0f\n\x07\x64ropped\x18\x03 \x01(\x04\x12\x15\n\rupstream_gaps\x18\x04 \x01(\x04\x12\x11\n\ttime_gaps\x18\x05 \x01(\x04\x12\x12\n\ntime_gap_s\x18\x06 \x01(\x01\"\xdb\x02\n\x0eRecorderStatus\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12\'\n\x05state\x18\x02 \x01(\x0e\x32\x18.tiplog.v1.RecorderState\x12\x0c\n\x04path\x18\x03 \x01(\t\x12\x15\n\rbytes_written\x18\x04 \x01(\x04\x12\x12\n\nfree_bytes\x18\x05 \x01(\x04\x12\x12\n\nduration_s\x18\x06 \x01(\x01\x12\r\n\x05\x61larm\x18\x07 \x01(\t\x12\x35\n\x06topics\x18\x08 \x03(\x0b\x32%.tiplog.v1.RecorderStatus.TopicsEntry\x12\x12\n\nfile_index\x18\t \x01(\r\x12\x0f\n\x07session\x18\n \x01(\t\x1a\x45\n\x0bTopicsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12%\n\x05value\x18\x02 \x01(\x0b\x32\x16.tiplog.v1.TopicCounts:\x02\x38\x01\"]\n\x0fRecorderCommand\x12)\n\x06\x61\x63tion\x18\x01 \x01(\x0e\x32\x19.tiplog.v1.RecorderAction\x12\x0e\n\x06reason\x18\x02 \x01(\t\x12\x0f\n\x07session\x18\x03 \x01(\t\"W\n\rRecorderReply\x12\n\n\x02ok\x18\x01 \x01(\x08\x12\x0f\n\x07message\x18\x02 \x01(\t\x12)\n\x06status\x18\x03 \x01(\x0b\x32\x19.tiplog.v1.RecorderStatus*\x80\x01\n\rRecorderState\x12\x1e\n\x1aRECORDER_STATE_UNSPECIFIED\x10\x00\x12\x17\n\x13RECORDER_STATE_IDLE\x10\x01\x12\x1c\n\x18RECORDER_STATE_RECORDING\x10\x02\x12\x18\n\x14RECORDER_STATE_ERROR\x10\x03*\xb7\x01\n\x0eRecorderAction\x12\x1f\n\x1bRECORDER_ACTION_UNSPECIFIED\x10\x00\x12\x19\n\x15RECORDER_ACTION_START\x10\x01\x12\x18\n\x14RECORDER_ACTION_STOP\x10\x02\x12\x19\n\x15RECORDER_ACTION_SPLIT\x10\x03\x12\x18\n\x14RECORDER_ACTION_MARK\x10\x04\x12\x1a\n\x16RECORDER_ACTION_STATUS\x10\x05\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -34,18 +34,18 @@ if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
   _globals['_RECORDERSTATUS_TOPICSENTRY']._loaded_options = None
   _globals['_RECORDERSTATUS_TOPICSENTRY']._serialized_options = b'8\001'
-  _globals['_RECORDERSTATE']._serialized_start=688
-  _globals['_RECORDERSTATE']._serialized_end=816
-  _globals['_RECORDERACTION']._serialized_start=819
-  _globals['_RECORDERACTION']._serialized_end=1002
+  _globals['_RECORDERSTATE']._serialized_start=727
+  _globals['_RECORDERSTATE']._serialized_end=855
+  _globals['_RECORDERACTION']._serialized_start=858
+  _globals['_RECORDERACTION']._serialized_end=1041
   _globals['_TOPICCOUNTS']._serialized_start=63
-  _globals['_TOPICCOUNTS']._serialized_end=151
-  _globals['_RECORDERSTATUS']._serialized_start=154
-  _globals['_RECORDERSTATUS']._serialized_end=501
-  _globals['_RECORDERSTATUS_TOPICSENTRY']._serialized_start=432
-  _globals['_RECORDERSTATUS_TOPICSENTRY']._serialized_end=501
-  _globals['_RECORDERCOMMAND']._serialized_start=503
-  _globals['_RECORDERCOMMAND']._serialized_end=596
-  _globals['_RECORDERREPLY']._serialized_start=598
-  _globals['_RECORDERREPLY']._serialized_end=685
+  _globals['_TOPICCOUNTS']._serialized_end=190
+  _globals['_RECORDERSTATUS']._serialized_start=193
+  _globals['_RECORDERSTATUS']._serialized_end=540
+  _globals['_RECORDERSTATUS_TOPICSENTRY']._serialized_start=471
+  _globals['_RECORDERSTATUS_TOPICSENTRY']._serialized_end=540
+  _globals['_RECORDERCOMMAND']._serialized_start=542
+  _globals['_RECORDERCOMMAND']._serialized_end=635
+  _globals['_RECORDERREPLY']._serialized_start=637
+  _globals['_RECORDERREPLY']._serialized_end=724
 # @@protoc_insertion_point(module_scope)

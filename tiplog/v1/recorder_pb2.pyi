@@ -35,16 +35,20 @@ RECORDER_ACTION_MARK: RecorderAction
 RECORDER_ACTION_STATUS: RecorderAction
 
 class TopicCounts(_message.Message):
-    __slots__ = ("received", "written", "dropped", "upstream_gaps")
+    __slots__ = ("received", "written", "dropped", "upstream_gaps", "time_gaps", "time_gap_s")
     RECEIVED_FIELD_NUMBER: _ClassVar[int]
     WRITTEN_FIELD_NUMBER: _ClassVar[int]
     DROPPED_FIELD_NUMBER: _ClassVar[int]
     UPSTREAM_GAPS_FIELD_NUMBER: _ClassVar[int]
+    TIME_GAPS_FIELD_NUMBER: _ClassVar[int]
+    TIME_GAP_S_FIELD_NUMBER: _ClassVar[int]
     received: int
     written: int
     dropped: int
     upstream_gaps: int
-    def __init__(self, received: _Optional[int] = ..., written: _Optional[int] = ..., dropped: _Optional[int] = ..., upstream_gaps: _Optional[int] = ...) -> None: ...
+    time_gaps: int
+    time_gap_s: float
+    def __init__(self, received: _Optional[int] = ..., written: _Optional[int] = ..., dropped: _Optional[int] = ..., upstream_gaps: _Optional[int] = ..., time_gaps: _Optional[int] = ..., time_gap_s: _Optional[float] = ...) -> None: ...
 
 class RecorderStatus(_message.Message):
     __slots__ = ("header", "state", "path", "bytes_written", "free_bytes", "duration_s", "alarm", "topics", "file_index", "session")

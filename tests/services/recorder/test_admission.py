@@ -168,7 +168,7 @@ def test_rogue_process_on_known_topics_against_a_recorder_process(bus_pair_confi
             [sys.executable, "-m", "services.recorder", "--connect", listen_cfg.listen[0], "--prefix"]
             + [listen_cfg.prefix, "--set", "autostart=always", "--set", f"out_dir={tmp_path / 'rec'}"]
             + ["--set", "min_free_bytes=0", "--set", "quarantine_max_payload_bytes=100000"]
-            + ["--set", "status_period_s=0.2"],
+            + ["--set", "status_period_s=0.2", "--set", "camera_archive=raw"],
             cwd=ROOT,
             env=ENV,
             stderr=subprocess.PIPE,

@@ -6,6 +6,7 @@ import errno
 import io
 import json
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -94,7 +95,14 @@ def test_session_split_mark_stop_and_counts(tmp_path):
     assert md0["session"]["session"] == "case1" and md0["session"]["start_reason"] == "test"
     assert md1["session"]["file_index"] == "1"
     final = json.loads(md1["recorder_counts"]["device/gyro"])
-    assert final == {"received": 149, "written": 149, "dropped": 0, "upstream_gaps": 1}
+    assert final == {
+        "received": 149,
+        "written": 149,
+        "dropped": 0,
+        "upstream_gaps": 1,
+        "time_gaps": 0,
+        "time_gap_s": 0.0,
+    }
     s = read_summary(files[1])
     assert s.statistics.message_count == 49 and s.chunk_indexes
 
@@ -316,3 +324,39 @@ def test_salvage_cuts_back_further_when_the_end_of_file_does_not_fit(tmp_path):
     got = list(read_messages(tmp_path / "full.mcap"))
     assert [r.sequence for r in got] == [0, 1, 2]
     assert (tmp_path / "full.mcap").stat().st_size <= capacity
+
+
+def test_write_rate_gives_the_minutes_of_case_left():
+    from services.recorder.recorder import WriteRate
+
+    w = WriteRate()
+    assert w.minutes_left(10**9, 0) is None  # no rate yet
+    for k in range(10):
+        w.update(float(k), k * 2_000_000)  # 2 MB/s
+    assert abs(w.rate_bps - 2e6) < 1 and abs(w.minutes_left(2_000_000 * 60 * 7 + 5, 5) - 7.0) < 1e-6
+    w.update(10.0, 0)  # a new session: its bytes start again, the rate stays
+    assert abs(w.rate_bps - 2e6) < 1
+
+
+def test_the_low_disk_alarm_says_minutes_of_case_left_and_recording_goes_on(tmp_path):
+    class Usage:
+        free = 3 * 2**30
+
+    rec = Recorder(
+        cfg(tmp_path, min_free_bytes=2**30, disk_check_period_s=0.05, warn_minutes_left=1e9),
+        disk_usage=lambda _p: Usage(),
+    )
+    rec.start_thread()
+    try:
+        assert rec.command(cmd(A.RECORDER_ACTION_START, session="low")).ok
+        deadline, k = time.monotonic() + 20, 0
+        while "min of case left" not in rec.status().alarm:
+            assert time.monotonic() < deadline, rec.status().alarm
+            rec.on_sample(gyro(k, "x" * 2000), info(k))
+            k += 1
+            time.sleep(0.001)
+        st = rec.status()
+        assert st.state == S.RECORDER_STATE_RECORDING and st.alarm.startswith("low disk: 3.0 GiB free: about ")
+        assert " MB/s" in st.alarm
+    finally:
+        rec.close()

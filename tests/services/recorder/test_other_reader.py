@@ -42,6 +42,7 @@ def _record(path_dir: Path, compression: str) -> Path:
             min_free_bytes=0,
             compression=compression,
             chunk_size_bytes=256 * 1024,
+            camera_archive="raw",  # the frames as RawImage, read back by the other reader
         )
     )
     rec.start_thread()

@@ -69,7 +69,7 @@ def read_raw(path):
 
 def test_replay_then_record_is_identical_in_content_and_timing(served_recorder, bus_pair_configs, tmp_path):
     original = make_session(tmp_path / "orig.mcap")
-    srv = served_recorder()
+    srv = served_recorder(camera_archive="raw")  # byte for byte: the camera too, as it came
     assert srv.command(A.RECORDER_ACTION_START, "replay test", "again").ok
     # `tiplog replay` in its own process: in this one the recorder's threads would share the GIL.
     proc = subprocess.run(
