@@ -40,12 +40,19 @@ def proc_sample(pid: int) -> tuple[float, float] | None:
     return (int(stat[11]) + int(stat[12])) / CLK_TCK, int(statm[1]) * PAGE / 2**20
 
 
-def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window_s: float, period_s: float) -> dict:
+def soak(
+    seconds: float,
+    tier: str,
+    services: list[str],
+    warmup_s: float,
+    window_s: float,
+    period_s: float,
+    camera_archive: str = "jpeg",
+) -> dict:
     with tempfile.TemporaryDirectory(prefix="tiplog-soak-") as d:
         tmp = Path(d)
         config = system_config(tmp, tier=tier)
-        if tier == "pixel":  # the demo's recording: everything but the raw frames
-            config["recorder"]["exclude_topics"] = ["camera/image"]
+        config["recorder"]["camera_archive"] = camera_archive  # the demo's: jpeg, the default
         with UpRun(tmp, services, config) as up:
             st = up.wait_status(up.all_running, timeout_s=300)
             pids = {n: up.run_of(st, n).pid for n in services}
@@ -59,8 +66,10 @@ def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window
                         samples[n].append((now - t_start, *s))
                 time.sleep(period_s)  # a sampling period, not a synchronisation
             last = up.latest_status()
+            recorded_s = time.monotonic() - t_start
             restarts = {r.service: r.restarts for r in last.services} if last else {}
             assert up.stop() == 0, up.log_tail()
+        recording_bytes = sum(p.stat().st_size for p in up.recordings())
         rates: dict[str, dict] = {}
         recorder_dropped = recorder_rejected = 0  # counts of the session, from its status messages
         for rec in up.recordings():
@@ -101,6 +110,9 @@ def soak(seconds: float, tier: str, services: list[str], warmup_s: float, window
         "tier": tier,
         "services": rows,
         "restarts": restarts,
+        "camera_archive": camera_archive,
+        "recording_bytes": recording_bytes,
+        "archive_gb_per_hour": round(recording_bytes / recorded_s * 3600 / 1e9, 2),
         "recorder_dropped": recorder_dropped,
         "recorder_rejected": recorder_rejected,
         "seq_gaps": {t: r["seq_gaps"] for t, r in rates.items() if r["seq_gaps"]},
@@ -119,11 +131,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warmup", type=float, help="seconds left out at the start (default: 10 %% of the run)")
     ap.add_argument("--window", type=float, help="seconds of the first and last RSS windows (default: 20 %%)")
     ap.add_argument("--period", type=float, default=2.0, help="sampling period [s]")
+    ap.add_argument("--camera-archive", choices=["jpeg", "raw"], default="jpeg", help="the recorder's camera_archive")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON line at the end")
     a = ap.parse_args(argv)
     warmup = a.warmup if a.warmup is not None else 0.1 * a.seconds
     window = a.window if a.window is not None else 0.2 * a.seconds
-    r = soak(a.seconds, a.tier, a.services.split(","), warmup, window, a.period)
+    r = soak(a.seconds, a.tier, a.services.split(","), warmup, window, a.period, a.camera_archive)
     print(
         f"whole system, {r['tier']} tier, {r['seconds']:g} s; host load {r['load_average_1min']:.1f} on "
         f"{r['cpu_count']} CPUs; {r['messages']} messages recorded"
@@ -134,6 +147,10 @@ def main(argv: list[str] | None = None) -> int:
             f"{n:15s} {s['cpu_percent']:6.1f} {s['rss_first_mib']:8.1f} M {s['rss_last_mib']:7.1f} M "
             f"{s['rss_change_percent']:6.1f}% {s['rss_max_mib']:6.1f} M {r['restarts'].get(n, 0):8d}"
         )
+    print(
+        f"archive (camera_archive {r['camera_archive']}): {r['recording_bytes'] / 1e6:.1f} MB, "
+        f"{r['archive_gb_per_hour']:.2f} GB per hour at this run's rates"
+    )
     print("achieved rates [Hz]: " + ", ".join(f"{t} {hz:g}" for t, hz in r["rates_hz"].items()))
     print(
         f"drops: recorder {r['recorder_dropped']}, rejected by its admission check {r['recorder_rejected']}, "

@@ -31,6 +31,12 @@ C = TypeVar("C", bound=ServiceConfig)
 # once; supervised, a service leaves SIGINT to the supervisor, which stops them with SIGTERM in
 # order (the recorder last, so that it records what the others publish as they stop).
 SUPERVISED_ENV = "TIPLOG_SUPERVISED"
+# The supervisor's pid, also set by `tiplog up`: a supervised service stops (SIGTERM, files closed)
+# when its supervisor dies, by the kernel's parent-death signal and, should that be missed (a
+# supervisor that died before the child asked for it), by noticing that it has been re-parented.
+SUPERVISOR_PID_ENV = "TIPLOG_SUPERVISOR_PID"
+PR_SET_PDEATHSIG = 1
+REPARENT_CHECK_S = 0.5
 log = logging.getLogger("tiplog.service")
 
 
@@ -81,6 +87,41 @@ def overrides_from_args(args: argparse.Namespace) -> list[tuple[str, object] | s
     if getattr(args, "log_level", None):
         out.append(("log_level", args.log_level))
     return out
+
+
+def ask_parent_death_signal(signum: int = signal.SIGTERM) -> bool:
+    """Ask the kernel to send `signum` to this process when its parent dies (Linux prctl);
+    False where that is not available."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def watch_supervisor(supervisor_pid: int, stop: threading.Event, slog: logging.Logger) -> threading.Thread | None:
+    """Stop when the supervisor `supervisor_pid` is no longer this process's parent: the parent-death
+    signal, plus a thread that checks for re-parenting (init or a container's subreaper)."""
+    ask_parent_death_signal()
+    if os.getppid() != supervisor_pid:
+        slog.warning("supervisor (pid %d) is gone: stopping", supervisor_pid)
+        stop.set()
+        return None
+
+    def watch() -> None:
+        while not stop.wait(REPARENT_CHECK_S):
+            if os.getppid() != supervisor_pid:
+                slog.warning("supervisor (pid %d) is gone (parent now pid %d): stopping", supervisor_pid, os.getppid())
+                stop.set()
+                return
+
+    t = threading.Thread(target=watch, name="supervisor-watch", daemon=True)
+    t.start()
+    return t
 
 
 def setup_logging(level: str = "INFO") -> None:
@@ -145,6 +186,9 @@ def run_service(
     old = {s: signal.signal(s, on_signal) for s in handled}
     if supervised:
         old[signal.SIGINT] = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        supervisor_pid = os.environ.get(SUPERVISOR_PID_ENV, "")
+        if supervisor_pid.isdigit():
+            watch_supervisor(int(supervisor_pid), stop, slog)
     try:
         try:
             bus = Bus(config.bus, service=name, stop=stop)

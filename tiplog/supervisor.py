@@ -1,9 +1,14 @@
 """The supervisor of `tiplog up`: each service as its own process, restarted with back-off when
 it dies, and the state of every one reported on the bus (`system/supervisor`).
 
-Back-off: a service that dies waits 0.5 s before its first restart, doubling per quick death up
-to 30 s; one that ran for `stable_after_s` starts again from 0.5 s. Times are host monotonic
-seconds; stamps on the bus are `tiplog.clock.now_ns`.
+Back-off: a service that dies waits 0.5 s before its first restart (a child may ask for less:
+the recorder, whose absence loses data), doubling per quick death up to 30 s; one that ran
+for `stable_after_s` starts again from its first delay. Times are host monotonic seconds;
+stamps on the bus are `tiplog.clock.now_ns`.
+
+Nothing unrecorded: while `recording()` says no recorder records, every status with an event
+is also kept (the last `max_held`); once a recorder records again they are published once
+more, `replayed` and with their original stamps, so that its file holds them.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ import logging
 import signal
 import subprocess
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -32,6 +38,7 @@ class Child:
     ready: Callable[[], bool] = lambda: True  # may it start now (e.g. its calibration exists)
     stop_last: bool = False  # stopped only once the others have exited (the recorder: what they
     # publish as they stop, such as fusion's last settled second, is still recorded)
+    first_delay_s: float | None = None  # its first restart's delay (None: the supervisor's)
     proc: subprocess.Popen | None = None
     state: int = R.SERVICE_RUN_STATE_WAITING
     restarts: int = 0
@@ -54,7 +61,10 @@ class Supervisor:
     max_delay_s: float = 30.0
     stable_after_s: float = 60.0
     clock: Callable[[], float] = time.monotonic
+    recording: Callable[[], bool] = lambda: True  # does a recorder record what is published now
+    max_held: int = 1000
     _last_report: float = field(default=-1e9, init=False)
+    held: deque = field(default_factory=deque, init=False)  # statuses no recorder has recorded
 
     def poll(self) -> None:
         """One round: start what may start, notice exits, restart what is due."""
@@ -71,6 +81,28 @@ class Supervisor:
                 self._start(c, now, f"restarted (restart {c.restarts})")
         if now - self._last_report >= 1.0:
             self.report("")
+        if self.held and self._recording():
+            self.hand_over()
+
+    def _recording(self) -> bool:
+        try:
+            return bool(self.recording())
+        except Exception as e:  # the check must never stop the supervision
+            log.debug("recording check failed: %s", e)
+            return False
+
+    def hand_over(self) -> None:
+        """Publish the held statuses again (`replayed`, original stamps) for the recorder now up."""
+        n = len(self.held)
+        while self.held:
+            st = system_pb2.SupervisorStatus()
+            st.CopyFrom(self.held.popleft())
+            st.replayed = True
+            try:
+                self.publish(st)
+            except Exception as e:
+                log.debug("held supervisor status not published: %s", e)
+        log.info("handed %d supervisor event(s) to the recorder", n)
 
     def _start(self, c: Child, now: float, what: str) -> None:
         c.proc = c.spawn()
@@ -82,7 +114,8 @@ class Supervisor:
     def _exited(self, c: Child, rc: int, now: float) -> None:
         ran_s = now - c.started_at
         c.quick_deaths = 0 if ran_s >= self.stable_after_s else c.quick_deaths + 1
-        delay = min(self.max_delay_s, self.first_delay_s * 2 ** max(0, c.quick_deaths - 1))
+        first = self.first_delay_s if c.first_delay_s is None else c.first_delay_s
+        delay = min(self.max_delay_s, first * 2 ** max(0, c.quick_deaths - 1))
         c.state = R.SERVICE_RUN_STATE_RESTARTING
         c.restart_at = now + delay
         c.last_exit_code = rc
@@ -93,7 +126,8 @@ class Supervisor:
             if rc < 0 and -rc in signal.Signals._value2member_map_
             else f"exited with {rc}"
         )
-        event = f"{c.name} {how} after {ran_s:.1f} s; restarting in {delay:.1f} s"
+        shown = f"{delay:.2f}" if delay < 0.1 else f"{delay:.1f}"  # the recorder's 0.05 s is not "0.1"
+        event = f"{c.name} {how} after {ran_s:.1f} s; restarting in {shown} s"
         log.warning("%s", event)
         self.report(event)
 
@@ -118,8 +152,13 @@ class Supervisor:
 
     def report(self, event: str) -> None:
         self._last_report = self.clock()
+        st = self.status(event)
+        if event and not self._recording():
+            self.held.append(st)
+            while len(self.held) > self.max_held:
+                self.held.popleft()
         try:
-            self.publish(self.status(event))
+            self.publish(st)
         except Exception as e:  # the report must never stop the supervision
             log.debug("supervisor status not published: %s", e)
 

@@ -28,13 +28,16 @@ from tiplog.bus import Bus, BusConfig
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.cliargs import endpoint
 from tiplog.config import load_section
-from tiplog.service import SUPERVISED_ENV
+from tiplog.holders import device_reader, pty_emulator, tcp_listener
+from tiplog.service import SUPERVISED_ENV, SUPERVISOR_PID_ENV
 from tiplog.supervisor import Child, Supervisor
 from tiplog.userio import UserError, input_file
+from tiplog.v1 import recorder_pb2, system_pb2
 
 log = logging.getLogger("tiplog.up")
+R = system_pb2.ServiceRunState
 
-DEFAULT_SERVICES = ["bench", "sensor_gateway", "vision", "fusion", "recorder", "dashboard"]
+DEFAULT_SERVICES = ["bench", "sensor_gateway", "vision", "fusion", "recorder", "dashboard", "igtlink"]
 
 
 def register(p: argparse.ArgumentParser) -> None:
@@ -57,22 +60,36 @@ def register(p: argparse.ArgumentParser) -> None:
 
 
 # Services that read the calibration file (`calibration_file` in their configuration).
-CALIBRATION_READERS = ("fusion", "recorder", "dashboard")
+CALIBRATION_READERS = ("fusion", "recorder", "dashboard", "igtlink")
 STOP_LAST = ("recorder",)  # records what the others publish as they stop
+# While the recorder is down nothing is recorded: it is restarted at once the first time.
+FIRST_DELAY_S = {"recorder": 0.05}
 
 
-def _config_fields(name: str) -> set[str]:
-    """Fields of a service's configuration model (empty when it cannot be imported here)."""
+def _config_model(name: str):
+    """A service's configuration model (None when it cannot be imported here)."""
     from tiplog.config import ServiceConfig
 
     try:
         mod = importlib.import_module(f"services.{name}.app")
     except Exception:  # a service that fails to import says so itself when started
-        return set()
+        return None
     for v in vars(mod).values():
         if isinstance(v, type) and issubclass(v, ServiceConfig) and v is not ServiceConfig:
-            return set(v.model_fields)
-    return set()
+            return v
+    return None
+
+
+def _config_fields(name: str) -> set[str]:
+    """Fields of a service's configuration model (empty when it cannot be imported here)."""
+    model = _config_model(name)
+    return set(model.model_fields) if model is not None else set()
+
+
+def _config_default(name: str, field: str) -> object:
+    """A service configuration field's default (None when unknown here)."""
+    model = _config_model(name)
+    return model.model_fields[field].default if model is not None and field in model.model_fields else None
 
 
 def calibration_sets(
@@ -100,22 +117,87 @@ def calibration_sets(
     return sets, path
 
 
+def _tcp_host_port(ep: str) -> tuple[str, int] | None:
+    """(host, port) of a `tcp/HOST:PORT` (or tls/quic) endpoint; None for other kinds."""
+    proto, _, rest = ep.partition("/")
+    if proto not in ("tcp", "tls", "quic", "udp") or ":" not in rest:
+        return None
+    host, _, port = rest.rpartition(":")
+    try:
+        return host.strip("[]"), int(port.split("#")[0])
+    except ValueError:
+        return None
+
+
+def held_resources(names: list[str], listen: str, config: str | None) -> list[str]:
+    """What another process already holds of what this `tiplog up` would take: the router
+    endpoint, the dashboard's and the OpenIGTLink service's ports, the bench's device link, the
+    gateway's device; one phrase each, naming the holder."""
+    held = []
+    hp = _tcp_host_port(listen)
+    if hp and (h := tcp_listener(hp[1], hp[0])):
+        held.append(f"the router endpoint {listen} is held by {h}")
+    for name, what in (("dashboard", "the dashboard port"), ("igtlink", "the OpenIGTLink port")):
+        if name in names:
+            sec = load_section(config, name)
+            host = str(sec.get("host", _config_default(name, "host") or "127.0.0.1"))
+            port = int(sec.get("port", _config_default(name, "port") or 0))
+            if port and (h := tcp_listener(port, host)):
+                held.append(f"{what} {host}:{port} is held by {h}")
+    link = None
+    if "bench" in names:
+        link = str(load_section(config, "bench").get("device_link", _config_default("bench", "device_link") or ""))
+        if link and (h := pty_emulator(link) or (device_reader(link) if os.path.islink(link) else None)):
+            held.append(f"the device link {link} is held by {h}")
+    if "sensor_gateway" in names:
+        port = str(load_section(config, "sensor_gateway").get("port", _config_default("sensor_gateway", "port") or ""))
+        if port and port != link and "://" not in port and (h := device_reader(port)):
+            held.append(f"the device {port} is read by {h}")
+    return held
+
+
 def _spawn(name: str, endpoint: str, config: str | None, sets: list[str] = ()) -> subprocess.Popen:
     cmd = [sys.executable, "-m", f"services.{name}", "--connect", endpoint]
     if config:
         cmd += ["--config", config]
     for s in sets:
         cmd += ["--set", s]
-    return subprocess.Popen(cmd, env={**os.environ, SUPERVISED_ENV: "1"})
+    return subprocess.Popen(cmd, env={**os.environ, SUPERVISED_ENV: "1", SUPERVISOR_PID_ENV: str(os.getpid())})
+
+
+class RecorderWatch:
+    """Whether a recorder records what is published now: its latest recorder/status says
+    RECORDING, is fresh, and (for `tiplog up`'s own recorder) came from the process running now."""
+
+    def __init__(self, fresh_s: float = 3.0):
+        self.fresh_s = fresh_s
+        self.state = 0
+        self.at = -1e9  # host monotonic seconds of the latest status
+
+    def on_status(self, msg: recorder_pb2.RecorderStatus, _info: object) -> None:
+        self.state = msg.state
+        self.at = time.monotonic()
+
+    def recording(self, child: Child | None) -> bool:
+        if self.state != recorder_pb2.RECORDER_STATE_RECORDING or time.monotonic() - self.at > self.fresh_s:
+            return False
+        return child is None or (child.state == R.SERVICE_RUN_STATE_RUNNING and self.at >= child.started_at)
 
 
 def banner(names: list[str], config: str | None) -> str:
     """The short block a user sees: where to look, where recordings go, how to stop."""
     dash = load_section(config, "dashboard") if config else {}
     rec = load_section(config, "recorder") if config else {}
+    igtl = load_section(config, "igtlink") if config else {}
     lines = ["", "tiplog is starting: " + ", ".join(names)]
     if "dashboard" in names:
         lines.append(f"  dashboard   http://{dash.get('host', '127.0.0.1')}:{dash.get('port', 8000)}")
+        if dash.get("foxglove_bridge"):
+            where = f"ws://{dash.get('foxglove_host', '127.0.0.1')}:{dash.get('foxglove_port', 8765)}"
+            lines.append(f"  foxglove    {where}  (layout: config/foxglove_layout.json)")
+    if "igtlink" in names:
+        where = f"{igtl.get('host', '127.0.0.1')}:{igtl.get('port', 18944)}"
+        lines.append(f"  slicer      OpenIGTLink {where}  (OpenIGTLinkIF: client to that host and port)")
     if "recorder" in names:
         out_dir = str(rec.get("out_dir", "recordings"))
         shown = out_dir if Path(out_dir).is_absolute() else f"./{out_dir.removeprefix('./').rstrip('/')}/"
@@ -133,6 +215,12 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration must be positive (got {args.duration})")
     if args.config:
         load_section(args.config, "up")  # a missing file or a YAML error stops here, named
+    held = held_resources(names, args.listen, args.config)
+    if held:
+        raise UserError(
+            "cannot start: " + "; ".join(held) + " (another `tiplog up`, or what is left of one): stop it, or "
+            "give other --listen / dashboard.port / bench.device_link"
+        )
     run_dir = Path(tempfile.mkdtemp(prefix="tiplog-up-"))
     sets, calibration = calibration_sets(names, args.calibration, run_dir)
     stop = threading.Event()
@@ -150,14 +238,27 @@ def run(args: argparse.Namespace) -> int:
     with bus:
         status_pub = bus.publisher("system/supervisor")
         children = [
-            Child(n, functools.partial(_spawn, n, args.listen, args.config, sets[n]), stop_last=n in STOP_LAST)
+            Child(
+                n,
+                functools.partial(_spawn, n, args.listen, args.config, sets[n]),
+                stop_last=n in STOP_LAST,
+                first_delay_s=FIRST_DELAY_S.get(n),
+            )
             for n in names
         ]
+        watch = RecorderWatch()
+        bus.subscribe("recorder/status", watch.on_status)
+        recorder = next((c for c in children if c.name == "recorder"), None)
         for c in children:
             # The services that read the calibration at start wait for the bench to write it.
             if c.name in CALIBRATION_READERS and calibration is not None:
                 c.ready = calibration.exists
-        sup = Supervisor(children, publish=status_pub.put, router_endpoint=args.listen)
+        sup = Supervisor(
+            children,
+            publish=status_pub.put,
+            router_endpoint=args.listen,
+            recording=functools.partial(watch.recording, recorder),
+        )
         if calibration is not None:
             log.info("calibration file: %s", calibration)
         log.info("starting %s; router on %s", ", ".join(names), args.listen)

@@ -36,6 +36,12 @@ class DashboardConfig(ServiceConfig):
     stale_after_s: float = Field(2.0, gt=0.0, le=600.0)
     # Status (health, rates, recorder, diagnostics) pushed to each page this often.
     push_status_period_s: float = Field(0.5, gt=0.0, le=10.0)
+    # Largest request body accepted (413 above it, refused before it is read): the API's bodies
+    # are a few hundred bytes.
+    max_body_bytes: int = Field(65_536, ge=1024, le=16 * 1024 * 1024)
+    # A websocket client that has not taken one message within this time is dropped (counted):
+    # what waits for it is bounded by this time at the push rate.
+    ws_send_timeout_s: float = Field(5.0, gt=0.0, le=120.0)
     # How long a recorder command waits for the recorder's reply.
     recorder_timeout_s: float = Field(3.0, gt=0.0, le=60.0)
     # Calibration file (tiplog.calibration YAML) for drawing vision observations in the base frame.

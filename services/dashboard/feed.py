@@ -86,6 +86,10 @@ class BusFeed:
         self._subs: list[Any] = []
         # (state total, newest state as sent to pages), shared by the websocket senders.
         self.current_cache: tuple[int, dict[str, Any]] | None = None
+        # JSON text shared by the websocket senders (services.dashboard.websocket.BatchCache).
+        self.batch_cache: Any = None
+        self.ws_clients = 0  # websocket clients being served (on the event loop's thread)
+        self.ws_dropped = 0  # websocket clients dropped for not taking messages in time
         self._closed = False
         sub = bus.subscribe
         self._subs += [
@@ -96,7 +100,7 @@ class BusFeed:
             sub("vision/preview", self._on_preview),
             sub("recorder/status", self._keep),
             sub("device/status", self._keep),
-            sub("system/supervisor", self._keep),  # `tiplog up`: run state and restarts
+            sub("system/supervisor", self._on_supervisor),  # `tiplog up`: run state and restarts
             sub("fusion/predicted", self._keep),  # the newest state carried to the present
         ]
         # Counting every topic needs only the attachment: no payload copy (camera frames).
@@ -125,6 +129,10 @@ class BusFeed:
         att = sample.attachment
         seq, _pub_ns, pid, _name = decode_attachment(att.to_bytes() if att is not None else None)
         self.streams.on_sample(self.bus.topic_of(str(sample.key_expr)), seq, pid, now_ns())
+
+    def _on_supervisor(self, msg: Any, info: SampleInfo) -> None:
+        if not msg.replayed:  # a past status handed to a recorder again: not news
+            self._keep(msg, info)
 
     def _keep(self, msg: Any, info: SampleInfo) -> None:
         with self._latest_cv:

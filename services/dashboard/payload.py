@@ -102,6 +102,7 @@ def status(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
         "preview_seq": feed.preview[0] if feed.preview else 0,
         "error": feed.error_rms_mm(),
         "envelope": feed.envelope.snapshot(),
+        "websocket": {"clients": feed.ws_clients, "dropped_slow": feed.ws_dropped},
     }
 
 

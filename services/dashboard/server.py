@@ -18,12 +18,13 @@ from fastapi import Depends, FastAPI, HTTPException, Request, WebSocket
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse, Response
 from fastapi.security import APIKeyCookie, HTTPAuthorizationCredentials, HTTPBearer
 
-from services.dashboard import payload
+from services.dashboard import limits, payload
 from services.dashboard.auth import COOKIE, Role, Tokens, bearer
 from services.dashboard.config import DashboardConfig
 from services.dashboard.feed import BusFeed
+from services.dashboard.metrics_api import router as metrics_router
 from services.dashboard.recorder_api import RecorderClient, router
-from services.dashboard.websocket import Wake, serve_client
+from services.dashboard.websocket import BatchCache, Wake, serve_client
 
 log = logging.getLogger("tiplog.dashboard")
 STATIC = Path(__file__).with_name("static")
@@ -52,6 +53,7 @@ _cookie = APIKeyCookie(name=COOKIE, auto_error=False, description="token set by 
 def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder: RecorderClient) -> FastAPI:
     """The FastAPI application around `feed` (already subscribed on the bus)."""
     wake: dict[str, Wake] = {}
+    feed.batch_cache = BatchCache()
 
     @contextlib.asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
@@ -75,11 +77,14 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
         lifespan=lifespan,
     )
 
+    limits.install(app, config.max_body_bytes)
+
     def role_of(authorization: str | None, cookie: str | None) -> Role:
         return tokens.role_of(bearer(authorization) or cookie)
 
     def require(minimum: Role):
-        def dependency(
+        # async: checked on the event loop, no hop to the thread pool for every request
+        async def dependency(
             creds: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
             cookie: Annotated[str | None, Depends(_cookie)],
         ) -> Role:
@@ -142,18 +147,18 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
         return FileResponse(STATIC / name, media_type=STATIC_FILES[name])
 
     @app.get("/api/state", tags=["live"])
-    def api_state(_role: Viewer) -> dict[str, Any]:
+    async def api_state(_role: Viewer) -> dict[str, Any]:
         """The newest fusion state (tiplog.v1.FusionState as JSON), its derived row (tip in mm,
         error against the reference), how many states were received and the newest's age."""
         return payload.state_now(feed, feed.t0_ns)
 
     @app.get("/api/health", tags=["live"])
-    def api_health(_role: Viewer) -> dict[str, Any]:
+    async def api_health(_role: Viewer) -> dict[str, Any]:
         """Services by liveliness token (up, stale, down) and per-stream rates and drops."""
         return {"services": feed.health.snapshot(), "streams": feed.streams.snapshot()}
 
     @app.get("/api/status", tags=["live"])
-    def api_status(_role: Viewer) -> dict[str, Any]:
+    async def api_status(_role: Viewer) -> dict[str, Any]:
         """Everything the page shows besides the trails (what the websocket pushes)."""
         return payload.status(feed, feed.t0_ns)
 
@@ -171,6 +176,7 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
         return Response(p[2], media_type=f"image/{p[1]}")
 
     app.include_router(router(recorder, require))
+    app.include_router(metrics_router(feed, require))
 
     @app.get("/openapi.json", include_in_schema=False)
     def openapi(_role: Viewer) -> dict[str, Any]:

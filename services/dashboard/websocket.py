@@ -5,7 +5,9 @@ Each client's sender reads from its own cursors in the rings and sends one messa
 with every row that arrived since (none dropped from the trail while the client keeps up).
 While a send waits on a slow client, rows simply accumulate in the ring: the next message
 carries them all, up to `max_batch_rows`; a client more than a ring behind skips ahead and is
-told how many rows it missed. Nothing queues per client.
+told how many rows it missed. Nothing queues per client. A client that does not take a message
+within `ws_send_timeout_s` (it stopped reading, or reads slower than the push rate) is dropped
+and counted (`feed.ws_dropped`): what waits for it in the socket buffers is bounded.
 
 Messages (JSON):
 - hello: {type, columns, t0_ns, role, trail_samples}
@@ -78,37 +80,94 @@ def _predicted(feed: BusFeed) -> list[float] | None:
     return tip if all(v == v and abs(v) < 1e9 for v in tip) else None
 
 
-def _dumps(msg: dict[str, Any]) -> str:
+def _dumps(msg: Any) -> str:
     return json.dumps(msg, separators=(",", ":"), allow_nan=False)
+
+
+class BatchCache:
+    """JSON text shared by every client's sender (all on one event loop thread, so no lock):
+    the rows of a ring slice (rows once written do not change), the newest state, and the
+    status (rebuilt at most every `status_reuse_ns`). Clients that keep up send the same text."""
+
+    def __init__(self, status_reuse_ns: int = 50_000_000, max_slices: int = 256):
+        self.status_reuse_ns = status_reuse_ns
+        self.max_slices = max_slices
+        self._rows: dict[tuple[str, int, int], str] = {}
+        self._current: tuple[int, str] | None = None
+        self._status: tuple[int, str] | None = None
+
+    def rows(self, key: str, sl: Any, t0_ns: int) -> str:
+        k = (key, sl.start, sl.end)
+        text = self._rows.get(k)
+        if text is None:
+            if len(self._rows) >= self.max_slices:
+                self._rows.clear()
+            text = self._rows[k] = _dumps(payload.rows(sl, t0_ns))
+        return text
+
+    def current(self, feed: BusFeed, t0_ns: int) -> str:
+        total = feed.state.total
+        if self._current is None or self._current[0] != total:
+            self._current = (total, _dumps(_current(feed, t0_ns)))
+        return self._current[1]
+
+    def status(self, feed: BusFeed, t0_ns: int) -> str:
+        t = now_ns()
+        if self._status is None or t - self._status[0] >= self.status_reuse_ns:
+            self._status = (t, _dumps(payload.status(feed, t0_ns)))
+        return self._status[1]
 
 
 async def serve_client(
     websocket: WebSocket, feed: BusFeed, wake: Wake, config: DashboardConfig, t0_ns: int, role: str
 ) -> None:
-    """Send to one accepted websocket until it closes."""
-    await websocket.send_text(
-        _dumps(
-            {
-                "type": "hello",
-                "columns": payload.columns(),
-                "t0_ns": t0_ns,
-                "role": role,
-                "trail_samples": config.trail_samples,
-            }
-        )
-    )
-    receiver = asyncio.create_task(_drain_incoming(websocket))
-    sender = asyncio.create_task(_send_loop(websocket, feed, wake, config, t0_ns))
-    done, pending = await asyncio.wait({receiver, sender}, return_when=asyncio.FIRST_COMPLETED)
-    for task in pending:
-        task.cancel()
-    for task in pending:
-        with contextlib.suppress(asyncio.CancelledError, Exception):
-            await task
-    for task in done:
-        exc = task.exception()
-        if exc is not None and not isinstance(exc, WebSocketDisconnect | ConnectionError | RuntimeError):
-            log.warning("websocket client ended with %r", exc)
+    """Send to one accepted websocket until it closes, or until it stops taking messages."""
+    feed.ws_clients += 1
+    try:
+        hello = {
+            "type": "hello",
+            "columns": payload.columns(),
+            "t0_ns": t0_ns,
+            "role": role,
+            "trail_samples": config.trail_samples,
+        }
+        await send_bounded(websocket, _dumps(hello), config.ws_send_timeout_s)
+        receiver = asyncio.create_task(_drain_incoming(websocket))
+        sender = asyncio.create_task(_send_loop(websocket, feed, wake, config, t0_ns))
+        done, pending = await asyncio.wait({receiver, sender}, return_when=asyncio.FIRST_COMPLETED)
+        for task in pending:
+            task.cancel()
+        for task in pending:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        for task in done:
+            exc = task.exception()
+            if isinstance(exc, SlowClient):
+                raise exc
+            if exc is not None and not isinstance(exc, WebSocketDisconnect | ConnectionError | RuntimeError):
+                log.warning("websocket client ended with %r", exc)
+    except SlowClient as e:
+        feed.ws_dropped += 1
+        log.warning("websocket client %s dropped: %s (%d dropped so far)", _peer(websocket), e, feed.ws_dropped)
+    finally:
+        feed.ws_clients -= 1
+
+
+class SlowClient(Exception):
+    """A websocket client that did not take a message in time."""
+
+
+async def send_bounded(websocket: WebSocket, text: str, timeout_s: float) -> None:
+    """Send `text`, or raise SlowClient when the client has not taken it within `timeout_s`."""
+    try:
+        await asyncio.wait_for(websocket.send_text(text), timeout_s)
+    except TimeoutError:
+        raise SlowClient(f"took no message for {timeout_s:g} s") from None
+
+
+def _peer(websocket: WebSocket) -> str:
+    c = websocket.client
+    return f"{c.host}:{c.port}" if c else "?"
 
 
 async def _drain_incoming(websocket: WebSocket) -> None:
@@ -131,27 +190,28 @@ async def _send_loop(websocket: WebSocket, feed: BusFeed, wake: Wake, config: Da
         if not behind and now_ns() < next_status:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(event.wait(), timeout=max(0.0, (next_status - now_ns()) / 1e9))
-        msg: dict[str, Any] = {"type": "batch"}
+        cache: BatchCache = feed.batch_cache
+        parts = ['{"type":"batch"']
         skipped = 0
-        new_state = False
+        new_rows = {}
         for key, ring in rings.items():
-            s = ring.read(cursors[key], config.max_batch_rows)
-            cursors[key] = s.end
-            skipped += s.skipped
-            msg[key] = payload.rows(s, t0_ns)
-            new_state |= key == "state" and s.end > s.start
-        msg["skipped"] = skipped
+            sl = ring.read(cursors[key], config.max_batch_rows)
+            cursors[key] = sl.end
+            skipped += sl.skipped
+            new_rows[key] = sl.end > sl.start
+            parts.append(f',"{key}":{cache.rows(key, sl, t0_ns)}')
+        parts.append(f',"skipped":{skipped}')
         status_due = now_ns() >= next_status
-        if not (new_state or status_due or msg["reference"] or msg["vision"]):
+        if not (new_rows["state"] or status_due or new_rows["reference"] or new_rows["vision"]):
             continue
-        if new_state:
-            msg["current"] = _current(feed, t0_ns)
+        if new_rows["state"]:
+            parts.append(f',"current":{cache.current(feed, t0_ns)}')
             predicted_ns = feed.latest_receive_ns.get("fusion/predicted", 0)
             if predicted_ns != predicted_sent_ns:
                 predicted_sent_ns = predicted_ns
-                msg["predicted"] = _predicted(feed)
+                parts.append(f',"predicted":{_dumps(_predicted(feed))}')
         if status_due:
-            msg["status"] = payload.status(feed, t0_ns)
+            parts.append(f',"status":{cache.status(feed, t0_ns)}')
             next_status = now_ns() + period_ns
-        msg["sent_ns"] = now_ns()
-        await websocket.send_text(_dumps(msg))
+        parts.append(f',"sent_ns":{now_ns()}}}')
+        await send_bounded(websocket, "".join(parts), config.ws_send_timeout_s)

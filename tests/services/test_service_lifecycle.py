@@ -16,7 +16,7 @@ from tests.conftest import ROOT
 from tiplog.bus import Bus
 from tiplog.service import SUPERVISED_ENV
 
-SERVICES = ["sensor_gateway", "vision", "fusion", "recorder", "dashboard", "bench"]
+SERVICES = ["sensor_gateway", "vision", "fusion", "recorder", "dashboard", "bench", "igtlink"]
 
 
 def _start(name: str, endpoint: str, prefix: str, *extra: str, env: dict[str, str] | None = None) -> subprocess.Popen:

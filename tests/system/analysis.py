@@ -73,6 +73,20 @@ def status_changes(path: str | Path) -> int:
     return n
 
 
+def supervisor_periodic(path: str | Path) -> TopicRate:
+    """The rate of the supervisor's periodic reports alone: those without an event (a start, an
+    exit, a restart, each reported at once) and not replayed for a recorder that came up late
+    (published again in one burst with their first stamps)."""
+    t = [
+        rec.log_time_ns
+        for rec in read_messages(path, ["system/supervisor"])
+        if not rec.message.event and not rec.message.replayed
+    ]
+    t_s = np.asarray(t, np.float64) / 1e9
+    span = t_s[-1] - t_s[0] if len(t_s) > 1 else 0.0
+    return TopicRate(len(t), (len(t) - 1) / span if span > 0 else 0.0, float(np.max(np.diff(t_s), initial=0)), 0)
+
+
 @dataclass
 class Track:
     """Tip positions [m, base frame] at header stamps [ns], shape (N,), (N, 3)."""

@@ -17,7 +17,15 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT
-from tests.system.analysis import NOMINAL_HZ, read_track, rms, status_changes, tip_error_mm, topic_rates
+from tests.system.analysis import (
+    NOMINAL_HZ,
+    read_track,
+    rms,
+    status_changes,
+    supervisor_periodic,
+    tip_error_mm,
+    topic_rates,
+)
 from tests.system.harness import UpRun
 from tiplog.mcap_io import read_summary
 
@@ -65,6 +73,11 @@ def test_whole_system_60s_rates_live_vs_offline_and_dashboard(tmp_path):
             assert changes >= 1  # at least the stop
             periodic_hz = r.rate_hz * (r.count - 1 - changes) / (r.count - 1)
             assert abs(periodic_hz - hz) < 0.05 * hz, (topic, r, changes)
+        elif topic == "system/supervisor":
+            # One per second, and one more at once on every start, exit and restart, and the
+            # events held until the recorder was up, published again as it comes up
+            periodic = supervisor_periodic(rec)
+            assert abs(periodic.rate_hz - hz) < 0.05 * hz, (topic, r, periodic)
         else:
             assert abs(r.rate_hz - hz) < 0.05 * hz, (topic, r)
     assert rates["device/gyro"].count > 200 * RECORD_S

@@ -145,3 +145,29 @@ def test_stop_last_waits_for_the_others_to_exit(tmp_path):
     assert states == {"recorder": R.SERVICE_RUN_STATE_RUNNING, "fusion": R.SERVICE_RUN_STATE_STOPPED}
     assert done == ["fusion"]
     assert seen[-1][0] == "stopped"
+
+
+def test_events_no_recorder_recorded_are_held_and_handed_over_with_their_stamps():
+    clock, published = Clock(), []
+    recording = [False]
+    rec = Child("recorder", exiting(1), first_delay_s=0.05)
+    sup = Supervisor([rec], publish=published.append, clock=clock, recording=lambda: recording[0])
+    sup.poll()  # started: nobody records yet
+    rec.proc.wait(30)
+    clock.t += 0.2
+    sup.poll()  # its death: held as well
+    assert abs(rec.restart_at - clock.t - 0.05) < 1e-9  # the recorder's own first delay
+    held = [s.event for s in sup.held]
+    assert held == ["recorder started", "recorder exited with 1 after 0.2 s; restarting in 0.05 s"], held
+    stamps = [s.header.stamp_ns for s in sup.held]
+    n_live = len(published)
+    recording[0] = True
+    sup.poll()  # a recorder records again: both published once more, replayed, stamps kept
+    again = published[n_live:]
+    assert [s.event for s in again if s.replayed] == held
+    assert [s.header.stamp_ns for s in again if s.replayed] == stamps
+    assert not sup.held and not any(s.replayed for s in published[:n_live])
+    clock.t += 1.0
+    sup.poll()
+    assert not sup.held  # while recording nothing is held
+    sup.stop()

@@ -23,7 +23,7 @@ def test_up_runs_every_service_and_the_bench_reaches_the_gateway(tmp_path):
     cfg = tmp_path / "up.yaml"
     cfg.write_text(
         f"bench:\n  scenario: static\n  duration_s: 6\n  camera_tier: measurement\n  device_link: {tmp_path}/dev\n"
-        f"sensor_gateway:\n  port: {tmp_path}/dev\nrecorder:\n  out_dir: {tmp_path}/rec\n  autostart: never\n  min_free_bytes: 0\n"
+        f"sensor_gateway:\n  port: {tmp_path}/dev\nigtlink:\n  port: {free_port()}\ndashboard:\n  port: {free_port()}\nrecorder:\n  out_dir: {tmp_path}/rec\n  autostart: never\n  min_free_bytes: 0\n"
     )
     up = subprocess.Popen(
         [sys.executable, "-m", "tiplog.cli", "up", "--listen", ep, "-c", str(cfg)],

@@ -52,7 +52,9 @@ def test_the_demo_banner_says_where_to_look_where_recordings_go_and_how_to_stop(
 
     text = banner(DEFAULT_SERVICES, str(ROOT / "config" / "demo.yaml"))
     lines = [ln for ln in text.splitlines() if ln.strip()]
-    assert len(lines) == 4  # one short block
+    assert len(lines) == 6  # one short block
     assert "dashboard   http://127.0.0.1:8000" in text
+    assert "foxglove    ws://127.0.0.1:8765" in text  # the live bridge is on in the demo
+    assert "slicer      OpenIGTLink 127.0.0.1:18944" in text
     assert "recordings  ./recordings/" in text and "autostart: always" in text
     assert "stop        Ctrl-C" in text

@@ -42,13 +42,15 @@ class ServiceRun(_message.Message):
     def __init__(self, service: _Optional[str] = ..., state: _Optional[_Union[ServiceRunState, str]] = ..., pid: _Optional[int] = ..., restarts: _Optional[int] = ..., last_exit_code: _Optional[int] = ..., last_exit_stamp_ns: _Optional[int] = ..., restart_in_s: _Optional[float] = ..., uptime_s: _Optional[float] = ...) -> None: ...
 
 class SupervisorStatus(_message.Message):
-    __slots__ = ("header", "services", "router_endpoint", "event")
+    __slots__ = ("header", "services", "router_endpoint", "event", "replayed")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SERVICES_FIELD_NUMBER: _ClassVar[int]
     ROUTER_ENDPOINT_FIELD_NUMBER: _ClassVar[int]
     EVENT_FIELD_NUMBER: _ClassVar[int]
+    REPLAYED_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     services: _containers.RepeatedCompositeFieldContainer[ServiceRun]
     router_endpoint: str
     event: str
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., services: _Optional[_Iterable[_Union[ServiceRun, _Mapping]]] = ..., router_endpoint: _Optional[str] = ..., event: _Optional[str] = ...) -> None: ...
+    replayed: bool
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., services: _Optional[_Iterable[_Union[ServiceRun, _Mapping]]] = ..., router_endpoint: _Optional[str] = ..., event: _Optional[str] = ..., replayed: _Optional[bool] = ...) -> None: ...

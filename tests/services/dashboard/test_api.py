@@ -160,6 +160,7 @@ def test_page_scripts_never_write_markup():
         "/static/dashboard.css",
         "/static/draw.js",
         "/static/dashboard.js",
+        "/api/metrics?download=1",  # the skill metrics of the current recording, same origin
     }
 
 

@@ -14,7 +14,7 @@ from services.dashboard.config import DashboardConfig
 from services.dashboard.feed import STATE_COLUMNS
 from services.dashboard.ring import Ring
 from services.dashboard.streams import Envelope
-from services.dashboard.websocket import Wake, serve_client
+from services.dashboard.websocket import BatchCache, Wake, serve_client
 
 
 def test_ring_cursor_and_skip():
@@ -51,6 +51,9 @@ class _FakeFeed:
         self.current_cache = None
         self.latest: dict = {}
         self.latest_receive_ns: dict = {}
+        self.ws_clients = 0
+        self.ws_dropped = 0
+        self.batch_cache = BatchCache()
 
 
 class _SlowSocket:
