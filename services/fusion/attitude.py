@@ -9,13 +9,20 @@ estimation with bias estimation and magnetic disturbance rejection", Information
   time constant `tau_acc_s`): motion accelerations average out in an inertial frame while
   gravity does not, so the filtered vector is gravity as the drifting gyro frame sees it;
 - an inclination correction `q_acc` (about horizontal axes only) turns it onto +z;
-- the gyroscope bias is a three-state Kalman filter, fed at rest by the low-passed gyroscope
-  and in motion by the rate of the inclination correction.
+- the gyroscope bias is a three-state Kalman filter, fed at rest by the mean rate of the rest
+  detector's latest chunk and in motion by the rate of the inclination correction. Rest is the
+  tracking filter's detector (`kernels.rest_sample`): VQF's test (every sample near its
+  low-pass for `rest_min_s`), then chunks of `rest_chunk_s` taken only once the next chunk
+  agrees with them, so that a slow sway is not rest; a chunk whose mean rate is beyond the
+  bias clip is a slow turn, not rest.
 
 Unlike VQF, every step uses its own time step from the sample stamps (arbitrary and jittering
 rates, dropped rows), the gyroscope is integrated with the trapezoid rule, a gap longer than
 `max_gap_s` restarts the inclination from the next accelerometer sample, and a missing (NaN)
-gyroscope or accelerometer value skips that sensor for the row. The time loop is one scalar
+gyroscope or accelerometer value skips that sensor for the row, and a gyroscope that lags its
+stamps (`gyr_delay_s`, a sensor's internal filtering) has its integrated orientation carried
+forward over the delay by its latest bias-corrected rate before the accelerometer and the
+output use it. The time loop is one scalar
 kernel, compiled with numba (a dependency; when it is missing the same code runs as plain
 Python, slower, same results); the online `update` and the batch `update_batch` share it.
 
@@ -28,6 +35,8 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from services.fusion import kernels
 
 try:  # optional (extra `fast`): compiles the time loop, about 100x faster
     from numba import njit
@@ -46,9 +55,9 @@ _SQRT2 = math.sqrt(2.0)
 
 # Layout of the flat state vector the kernel works on.
 _QG, _QA, _LPA, _BIAS, _P = 0, 4, 8, 14, 17  # q_gyr(4) q_acc(4) acc lp(6) bias(3) P(9)
-_LPRG, _GLP, _LPRA, _LPR, _LPB = 26, 32, 35, 41, 59  # rest gyr lp(6) gyr lp out(3) rest acc lp(6) R lp(18) Rb lp(4)
-_REST_T, _REST, _T, _GPREV, _FLAG, _ACC_INIT, _ACC_T = 63, 64, 65, 66, 69, 70, 71
-_N_STATE = 72
+_GLP, _LPR, _LPB = 26, 29, 47  # rest's mean gyro rate(3) R lp(18) Rb lp(4)
+_REST, _T, _GPREV, _FLAG, _ACC_INIT, _ACC_T = 51, 52, 53, 56, 57, 58
+_N_STATE = 59
 
 
 @dataclass(frozen=True)
@@ -64,20 +73,28 @@ class Params:
     bias_sigma_rest_dps: float = 0.03  # steady-state bias sigma with rest updates
     rest_th_gyr_dps: float = 2.0  # rest: |gyr - lp(gyr)| below this ...
     rest_th_acc_mps2: float = 0.5  # ... and |acc - lp(acc)| below this ...
-    rest_min_s: float = 1.5  # ... for this long
+    rest_min_s: float = 1.5  # ... for this long; then chunks of
+    rest_chunk_s: float = 0.5  # this long are rest when the next one's mean rate ...
+    rest_agree_gyr_dps: float = 0.1  # ... is within this of theirs ...
+    rest_agree_acc_mps2: float = 0.05  # ... and its mean specific force within this
     max_gap_s: float = 0.5  # a longer gap between rows restarts the inclination
-    rest_tau_s: float = 0.5  # low-pass time constant of rest detection
+    rest_tau_s: float = 0.5  # low-pass time constant of rest detection (first order)
+    gyr_delay_s: float = 0.0  # the gyroscope's samples lag their stamps (and the accelerometer) by this
     estimate_bias: bool = True
 
     def __post_init__(self) -> None:
         for name, v in asdict(self).items():
             if name == "estimate_bias":
                 continue
+            if name == "gyr_delay_s":
+                if not (isinstance(v, (int, float)) and 0.0 <= v <= 0.1):
+                    raise ValueError(f"attitude parameter gyr_delay_s: must be from 0 to 0.1 s (got {v!r})")
+                continue
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"attitude parameter {name}: must be a finite number > 0 (got {v!r})")
 
     def vector(self) -> np.ndarray:
-        """The kernel's parameter vector (radians and SI units)."""
+        """The kernel's parameter vector (radians and SI units; the rest detector's: `rest_vector`)."""
         return np.array(
             [
                 self.tau_acc_s,
@@ -87,11 +104,23 @@ class Params:
                 self.bias_sigma_motion_dps,
                 self.bias_vertical_forgetting,
                 self.bias_sigma_rest_dps,
-                self.rest_th_gyr_dps * _DEG,
-                self.rest_th_acc_mps2,
-                self.rest_min_s,
                 self.max_gap_s if self.estimate_bias else -self.max_gap_s,
+                self.gyr_delay_s,
+            ]
+        )
+
+    def rest_vector(self) -> np.ndarray:
+        """The constants of `kernels.rest_sample`, the rest detector the tracking filter uses."""
+        return np.array(
+            [
                 self.rest_tau_s,
+                (self.rest_th_gyr_dps * _DEG) ** 2,
+                self.rest_th_acc_mps2**2,
+                self.rest_min_s,
+                self.rest_chunk_s,
+                self.max_gap_s,
+                (self.rest_agree_gyr_dps * _DEG) ** 2,
+                self.rest_agree_acc_mps2**2,
             ]
         )
 
@@ -151,12 +180,26 @@ def _qmat(q: np.ndarray, R: np.ndarray) -> None:
 
 
 @_jit
-def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st: np.ndarray, q_out: np.ndarray) -> None:
+def _run(
+    t_s: np.ndarray,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    prm: np.ndarray,
+    st: np.ndarray,
+    q_out: np.ndarray,
+    b_out: np.ndarray,
+    rest: np.ndarray,
+    rest_k: np.ndarray,
+) -> None:
     """Advance state `st` over rows (t_s (N,), gyr (N, 3) rad/s, acc (N, 3) m/s^2, NaN = missing);
     writes the sensor-to-earth quaternion of every row into q_out (N, 4) and the bias into
-    st. Rows whose time is not after the previous row's change nothing."""
-    clip, th_g, max_gap, tau_rest = prm[3], prm[7], abs(prm[10]), prm[11]
+    st; when b_out has N rows, each row's bias [rad/s] and its covariance [(deg/s)^2] into
+    b_out (N, 12). `rest` is the state of the rest detector (`kernels.rest_sample`, constants
+    rest_k). Rows whose time is not after the previous row's change nothing."""
+    clip, max_gap = prm[3], abs(prm[7])
     qtmp = np.empty(4)
+    qnow = st[_QG : _QG + 4].copy()  # q_gyr carried forward over the gyroscope's delay
+    delay = prm[8]
     corr = np.empty(4)
     R = np.empty(9)
     H = np.zeros((3, 3))
@@ -173,12 +216,14 @@ def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st:
         else:
             dt = t - st[_T]
             if not dt > 0.0:  # a repeated stamp: nothing happened since the previous row
-                _qmul(st[_QA : _QA + 4], st[_QG : _QG + 4], q_out[i])
+                _qmul(st[_QA : _QA + 4], qnow, q_out[i])
+                if b_out.shape[0] == t_s.shape[0]:
+                    for k in range(12):
+                        b_out[i, k] = st[_BIAS + k]
                 continue
             st[_T] = t
             if dt > max_gap:  # orientation over the gap is unknown: restart the inclination
                 st[_ACC_INIT] = 0.0
-                st[_REST_T] = 0.0
                 st[_REST] = 0.0
             elif g_ok or st[_GPREV] == st[_GPREV]:
                 # trapezoid between the previous and this gyro sample (hold one when missing)
@@ -194,57 +239,58 @@ def _run(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, prm: np.ndarray, st:
         if g_ok:
             for k in range(3):
                 st[_GPREV + k] = gyr[i, k]
-            # rest detection, gyroscope part
-            if dt > 0.0:
-                cr = _lp_coeffs(tau_rest, dt)
-                dev = 0.0
+            # a chunk's mean rate released as rest (one beyond the bias clip is a slow turn)
+            if kernels.rest_sample(rest, gyr[i], t, 0, rest_k):
                 big = False
                 for k in range(3):
-                    y = _lp(gyr[i, k], cr, st, _LPRG + 2 * k)
-                    st[_GLP + k] = y
-                    dev += (gyr[i, k] - y) ** 2
-                    big = big or abs(y) > clip
-                if dev >= th_g * th_g or big:
-                    st[_REST_T] = 0.0
-                    st[_REST] = 0.0
-            else:
-                for k in range(3):
-                    _lp_init(gyr[i, k], st, _LPRG + 2 * k)
-                    st[_GLP + k] = gyr[i, k]
+                    big = big or abs(rest[25 + k]) > clip
+                if not big:
+                    st[_REST] = 1.0
+                    for k in range(3):
+                        st[_GLP + k] = rest[25 + k]
         if a_ok:
-            _acc_step(acc[i], dt, st, prm, qtmp, corr, R, H, e)
-        _qmul(st[_QA : _QA + 4], st[_QG : _QG + 4], q_out[i])
+            kernels.rest_sample(rest, acc[i], t, 1, rest_k)
+        if rest[8] != rest[8]:  # a sample off its low-pass: moving
+            st[_REST] = 0.0
+        _predict(st, delay, qnow, qtmp, e)
+        if a_ok:
+            _acc_step(acc[i], dt, st, prm, qnow, qtmp, corr, R, H, e)
+        _qmul(st[_QA : _QA + 4], qnow, q_out[i])
+        if b_out.shape[0] == t_s.shape[0]:
+            for k in range(12):
+                b_out[i, k] = st[_BIAS + k]
 
 
 @_jit
-def _acc_step(a, dt, st, prm, qtmp, corr, R, H, e) -> None:
-    """Accelerometer row: rest detection, low-pass in the gyro frame, inclination correction,
-    bias update (see the module docstring)."""
+def _predict(st: np.ndarray, delay: float, qnow: np.ndarray, qr: np.ndarray, e: np.ndarray) -> None:
+    """qnow: q_gyr carried over the gyroscope's delay by its latest bias-corrected rate, so
+    that the accelerometer and the output see the orientation at the row's stamp."""
+    for k in range(4):
+        qnow[k] = st[_QG + k]
+    if delay <= 0.0 or st[_GPREV] != st[_GPREV]:
+        return
+    for k in range(3):
+        e[k] = (st[_GPREV + k] - st[_BIAS + k]) * delay
+    ang = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    if ang > 1e-15:
+        s = math.sin(0.5 * ang) / ang
+        qr[0], qr[1], qr[2], qr[3] = math.cos(0.5 * ang), s * e[0], s * e[1], s * e[2]
+        _qmul(st[_QG : _QG + 4], qr, qnow)
+
+
+@_jit
+def _acc_step(a, dt, st, prm, qnow, qtmp, corr, R, H, e) -> None:
+    """Accelerometer row: low-pass in the gyro frame, inclination correction, bias update (see
+    the module docstring)."""
     tau_acc, clip, mot_sig, vert_f, rest_sig = prm[0], prm[3], prm[4], prm[5], prm[6]
-    th_a, rest_min, bias_on, tau_rest = prm[8], prm[9], prm[10] > 0, prm[11]
+    bias_on = prm[7] > 0
     p0 = prm[1] * prm[1]
     v_rate = 0.01 / prm[2]  # (0.1 deg/s)^2 per forgetting time, per second
     init = st[_ACC_INIT] == 0.0 or dt <= 0.0
     step = dt if dt > 0.0 else 0.005
     ca = _lp_coeffs(tau_acc, step)
-    cr = _lp_coeffs(tau_rest, step)
-    # rest detection, accelerometer part
-    if init:
-        for k in range(3):
-            _lp_init(a[k], st, _LPRA + 2 * k)
-    else:
-        dev = 0.0
-        for k in range(3):
-            dev += (a[k] - _lp(a[k], cr, st, _LPRA + 2 * k)) ** 2
-        if dev >= th_a * th_a:
-            st[_REST_T] = 0.0
-            st[_REST] = 0.0
-        else:
-            st[_REST_T] += dt
-            if st[_REST_T] >= rest_min:
-                st[_REST] = 1.0
     # accelerometer in the quasi-inertial gyro frame, low-passed there
-    _qmat(st[_QG : _QG + 4], R)
+    _qmat(qnow, R)
     for k in range(3):
         x = R[3 * k] * a[0] + R[3 * k + 1] * a[1] + R[3 * k + 2] * a[2]
         if init:
@@ -271,7 +317,7 @@ def _acc_step(a, dt, st, prm, qtmp, corr, R, H, e) -> None:
         st[_ACC_INIT] = 1.0
         return
     # bias: R of the 6-D orientation and R @ bias, both low-passed like the accelerometer
-    _qmul(st[_QA : _QA + 4], st[_QG : _QG + 4], qtmp)
+    _qmul(st[_QA : _QA + 4], qnow, qtmp)
     _qmat(qtmp, R)
     bx, by, bz = st[_BIAS], st[_BIAS + 1], st[_BIAS + 2]
     rb0_ = R[0] * bx + R[1] * by + R[2] * bz
@@ -346,6 +392,8 @@ class AttitudeFilter:
         st[_P : _P + 9] = (np.eye(3) * self.params.bias_sigma_init_dps**2).ravel()
         st[_GPREV : _GPREV + 3] = np.nan
         self._st = st
+        self._rest = kernels.rest_init()
+        self._rest_k = self.params.rest_vector()
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
 
     @property
@@ -368,9 +416,13 @@ class AttitudeFilter:
         Returns the sensor-to-earth quaternion (w, x, y, z)."""
         return self.update_batch(np.array([t_s], float), np.reshape(gyr_radps, (1, 3)), np.reshape(acc_mps2, (1, 3)))[0]
 
-    def update_batch(self, t_s: np.ndarray, gyr_radps: np.ndarray, acc_mps2: np.ndarray) -> np.ndarray:
+    def update_batch(
+        self, t_s: np.ndarray, gyr_radps: np.ndarray, acc_mps2: np.ndarray, with_bias: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rows t_s (N,) [s, increasing], gyr (N, 3) [rad/s], acc (N, 3) [m/s^2] -> (N, 4)
-        sensor-to-earth quaternions (w, x, y, z). NaN marks a missing value."""
+        sensor-to-earth quaternions (w, x, y, z). NaN marks a missing value. With `with_bias`,
+        also each row's gyroscope bias estimate (N, 3) [rad/s] and its covariance (N, 3, 3)
+        [(deg/s)^2]."""
         t = np.ascontiguousarray(t_s, dtype=float)
         g = np.ascontiguousarray(gyr_radps, dtype=float)
         a = np.ascontiguousarray(acc_mps2, dtype=float)
@@ -380,9 +432,12 @@ class AttitudeFilter:
                 f"attitude input: expected t_s (N,), gyr (N, 3), acc (N, 3); got {t.shape}, {g.shape}, {a.shape}"
             )
         out = np.empty((n, 4))
-        _run(t, g, a, self._prm, self._st, out)
+        b_out = np.empty((n if with_bias else 0, 12))
+        _run(t, g, a, self._prm, self._st, out, b_out, self._rest, self._rest_k)
         if n:
             self._q = out[-1].copy()
+        if with_bias:
+            return out, b_out[:, :3].copy(), b_out[:, 3:].reshape(n, 3, 3).copy()
         return out
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from services.fusion import attitude
 from services.fusion.attitude import AttitudeFilter, Params, estimate
+from services.fusion.attitude_offline import smooth
 from tiplog.geometry import quat_to_rot, so3_exp
 
 G = 9.81
@@ -96,13 +97,13 @@ def test_online_equals_batch_and_pieces(truth):
 def test_compiled_and_plain_python_agree(truth):
     t, gyr, acc, _ = _sample(truth, 200.0, seed=4)
     n = 600
-    prm = Params().vector()
+    prm = Params(gyr_delay_s=0.004).vector()
     outs = []
     for kernel in (attitude._run, attitude._run.py_func):
         f = AttitudeFilter()
-        q = np.empty((n, 4))
-        kernel(t[:n].copy(), gyr[:n].copy(), acc[:n].copy(), prm, f._st, q)
-        outs.append(q)
+        q, b = np.empty((n, 4)), np.empty((n, 12))
+        kernel(t[:n].copy(), gyr[:n].copy(), acc[:n].copy(), prm, f._st, q, b, f._rest, f._rest_k)
+        outs.append(np.hstack([q, b]))
     np.testing.assert_allclose(outs[0], outs[1], atol=1e-9)
 
 
@@ -141,3 +142,70 @@ def test_as_good_as_vqf(truth):
     ref_q = vqf.VQF(1 / 200.0).updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))["quat6D"]
     ref = _incl_err_deg(ref_q, R)[t > 20]
     assert np.sqrt(np.mean(ours**2)) <= 1.1 * np.sqrt(np.mean(ref**2)) + 0.02
+
+
+def _delayed(truth, delay_s: float, seed: int):
+    """As _sample at 200 Hz, but each gyro sample is the rate delay_s before its stamp."""
+    t_f, R_f, w_f, _ = truth
+    t, gyr, acc, R = _sample(truth, 200.0, seed=seed)
+    idx = np.clip(np.searchsorted(t_f, t - delay_s), 0, t_f.size - 1)
+    return t, gyr - w_f[np.searchsorted(t_f, t)] + w_f[idx], acc, R
+
+
+def test_gyro_delay_is_undone_online_and_offline(truth):
+    t, gyr, acc, R = _delayed(truth, 0.008, seed=10)
+    rms = {}
+    for d in (0.0, 0.008):
+        p = Params(gyr_delay_s=d)
+        rms[d] = [np.sqrt(np.mean(_incl_err_deg(f(t, gyr, acc, p), R)[t > 20] ** 2)) for f in (estimate, smooth)]
+    assert rms[0.008][0] < 0.8 * rms[0.0][0]
+    assert rms[0.008][1] < 0.8 * rms[0.0][1]
+    with pytest.raises(ValueError, match="gyr_delay_s"):
+        Params(gyr_delay_s=-0.001)
+
+
+def test_smooth_beats_online_and_keeps_rows(truth):
+    t, gyr, acc, R = _sample(truth, 200.0, seed=11)
+    online = np.sqrt(np.mean(_incl_err_deg(estimate(t, gyr, acc), R)[t > 20] ** 2))
+    offline_err = _incl_err_deg(smooth(t, gyr, acc), R)
+    # offline has the future too: no settling at the start and less error after it
+    assert np.sqrt(np.mean(offline_err[t > 20] ** 2)) < 0.8 * online
+    assert np.sqrt(np.mean(offline_err[t < 5] ** 2)) < 1.0
+    # a gap, a missing row of each sensor and a repeated stamp: every row still gets an orientation
+    keep = (t < 25) | (t > 28)
+    t, gyr, acc, R = t[keep].copy(), gyr[keep].copy(), acc[keep].copy(), R[keep]
+    gyr[3000] = np.nan
+    acc[3100] = np.nan
+    t[3200] = t[3199]
+    q = smooth(t, gyr, acc)
+    assert q.shape == (t.size, 4) and np.isfinite(q).all()
+    np.testing.assert_array_equal(q[3200], q[3199])
+    assert np.sqrt(np.mean(_incl_err_deg(q, R)[t > 20] ** 2)) < 1.0
+
+
+def test_rest_is_the_tracking_filters_detector_and_measures_the_bias():
+    """Still, with a bias: rest comes once the detector has released a chunk (the tracking
+    filter's `kernels.rest_sample`, fed the same samples), and the bias converges to the truth;
+    a slow turn beyond the bias clip is not rest."""
+    from services.fusion import kernels
+
+    rng = np.random.default_rng(12)
+    rate = 200.0
+    t = np.arange(0.0, 20.0, 1.0 / rate)
+    bias = np.radians([0.4, -0.2, 0.3])
+    gyr = bias + rng.normal(0, np.radians(0.1), (t.size, 3))
+    acc = np.array([0.0, 3.0, 9.34]) + rng.normal(0, 0.05, (t.size, 3))
+    f = AttitudeFilter()
+    flags = np.array([(f.update(t[i], gyr[i], acc[i]), f.rest)[1] for i in range(t.size)])
+    rest, k = kernels.rest_init(), Params().rest_vector()
+    first_release = None
+    for i in range(t.size):
+        if kernels.rest_sample(rest, gyr[i], t[i], 0, k) and first_release is None:
+            first_release = i
+        kernels.rest_sample(rest, acc[i], t[i], 1, k)
+    assert first_release is not None and not flags[:first_release].any() and flags[first_release:].all()
+    assert np.degrees(np.abs(f.bias_radps - bias)).max() < 0.02
+    turn = AttitudeFilter()
+    up = acc.mean(axis=0) / np.linalg.norm(acc.mean(axis=0))
+    turn.update_batch(t, gyr + np.radians(3.0) * up, acc)  # 3 deg/s about the vertical: gravity stays put
+    assert not turn.rest

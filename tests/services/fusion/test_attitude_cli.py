@@ -100,6 +100,22 @@ def test_bad_parameter_exit_2(tmp_path: Path, capsys):
     src.write_text(HEADER + "".join(_rows(50)))
     rc, err = _run([src, tmp_path / "out.csv", "--tau-acc", "0"], capsys)
     assert rc == 2 and "tau_acc_s" in err
+    rc, err = _run([src, tmp_path / "out.csv", "--gyr-delay-ms", "-1"], capsys)
+    assert rc == 2 and "gyr_delay_s: must be from 0 to 0.1 s" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_accelerometer_norm_far_from_g_is_refused(tmp_path: Path, capsys):
+    src, dst = tmp_path / "in.csv", tmp_path / "out.csv"
+    rows = []
+    for r in _rows():
+        v = [float(x) for x in r.split(",")]
+        rows.append(",".join(f"{x:.9f}" for x in [*v[:4], *(np.array(v[4:]) * 0.3)]) + "\n")  # 2.9 m/s^2
+    src.write_text(HEADER + "".join(rows))
+    rc, err = _run([src, dst], capsys)
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert "median norm is 2.94, neither about 9.81 m/s^2 nor about 1 g" in err, err
+    assert not dst.exists()
 
 
 def test_accelerometer_in_g_is_scaled_with_a_note(tmp_path: Path, capsys):
