@@ -11,6 +11,7 @@ published on fusion/state, `output_delay_ms` behind, late frames only from their
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import logging
 import sys
@@ -137,6 +138,19 @@ def announced_rates(meta: dict[str, dict[str, str]]) -> dict[str, float]:
     return {t: v for t, v in rates.items() if v > 0}
 
 
+def source_fingerprint(path: Path) -> str:
+    """A short digest of a recording's message statistics (counts per topic, first and last log
+    time): what `tiplog metrics` compares to tell an estimate of this recording from one of
+    another."""
+    s = read_summary(path)
+    if s is None or s.statistics is None:
+        return ""
+    topic_of = {cid: c.topic for cid, c in s.channels.items()}
+    counts = sorted((topic_of.get(cid, str(cid)), n) for cid, n in s.statistics.channel_message_counts.items())
+    key = json.dumps([s.statistics.message_start_time, s.statistics.message_end_time, counts])
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
 def iter_inputs(src: Path, stats: dict[str, int]):
     """(topic, message, log_time_ns) of the filter's input topics in log-time order; a message
     that does not decode is counted in stats['corrupt'] and skipped (a damaged chunk, which
@@ -175,19 +189,25 @@ def run_filter(src: Path, runner: FusionRunner, progress: bool = False) -> tuple
 
 def write_output(tmp: Path, samples: list, runner: FusionRunner, meta: dict[str, Any], smoothed=None) -> None:
     from services.fusion.publish import to_diagnostics, to_frame_transforms
+    from services.fusion.scene import SCENE_PERIOD_NS, SceneTrail
 
     delay = runner.delay_ns
     lag = delay * 1e-6
     with McapWriter(tmp) as w:
         for k, v in meta.items():
             w.add_metadata(k, v)
-        last_tf = -(1 << 62)
+        last_tf = last_scene = -(1 << 62)
+        trail = SceneTrail(runner.calib.rcm_base_m)
         for i, s in enumerate(samples):
             log_ns = s.stamp_ns + delay
             w.write("fusion/state", to_fusion_state(s, lag, i), log_ns)
             if s.stamp_ns - last_tf >= TF_PERIOD_NS:
                 w.write("fusion/tf", to_frame_transforms(s), log_ns)
                 last_tf = s.stamp_ns
+            trail.add(s.stamp_ns, s.p_tip_base_m)
+            if s.stamp_ns - last_scene >= SCENE_PERIOD_NS:
+                w.write("fusion/scene", trail.message(s.stamp_ns), log_ns)
+                last_scene = s.stamp_ns
         if samples:
             w.write("fusion/diagnostics", to_diagnostics(runner.diagnostics(), samples[-1].stamp_ns + delay), log_ns)
         for i, s in enumerate(smoothed or []):
@@ -210,6 +230,7 @@ def run(args: argparse.Namespace) -> int:
     meta = {
         "fusion": {
             "source": src.name,
+            "source_fingerprint": source_fingerprint(src),
             "sensors": ",".join(sorted(sensors)),
             "mode": mode_name(sensors),
             "output": runner.output,

@@ -1,0 +1,209 @@
+"""Skill-assessment metrics of one segment of a tip trajectory, with intervals from the estimate's
+own uncertainty (pure numpy: no bus, no files).
+
+A `Motion` is a trajectory on a uniform grid (`resample`): tip positions, cumulative roll, the
+RCM and, for an estimate, its 1-sigma per axis. `segment_metrics` computes every figure of
+`METRICS` from it with `MetricsParams`' filtering and thresholds; `draw_intervals` repeats that on
+trajectories drawn about the estimate from its sigmas, correlated in time (see `correlated_noise`),
+and returns each metric's interval.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.signal import fftconvolve
+
+from services.fusion.metrics import kinematics as kin
+from services.fusion.metrics.smoothness import ldlj, sparc
+
+# key -> (unit, what): the order of the table and the JSON
+METRICS: dict[str, tuple[str, str]] = {
+    "duration_s": ("s", "duration"),
+    "path_length_mm": ("mm", "tip path length"),
+    "depth_path_mm": ("mm", "depth perception: path of the insertion depth"),
+    "angular_path_deg": ("deg", "angle swept by the shaft about the RCM"),
+    "elevation_path_deg": ("deg", "path of the shaft's angle from vertical"),
+    "azimuth_path_deg": ("deg", "path of the shaft's azimuth about the vertical"),
+    "roll_path_deg": ("deg", "path of the roll about the shaft"),
+    "economy_straight": ("", "straight start-end distance / path length"),
+    "economy_fulcrum": ("", "pivot-and-insert start-end path / path length"),
+    "movement_economy_straight": ("", "straight-line economy, mean over movements"),
+    "movement_economy_fulcrum": ("", "fulcrum-aware economy, mean over movements"),
+    "working_volume_cm3": ("cm3", "convex hull of the tip"),
+    "idle_time_s": ("s", "time with the tip speed under the idle threshold"),
+    "movements": ("", "movements in the speed profile"),
+    "mean_speed_mmps": ("mm/s", "mean tip speed"),
+    "peak_speed_mmps": ("mm/s", "peak tip speed"),
+    "ldlj": ("", "log dimensionless jerk of the tip speed"),
+    "sparc": ("", "spectral arc length of the tip speed"),
+}
+
+
+@dataclass(frozen=True)
+class MetricsParams:
+    """Grid, filtering and thresholds of the metrics, and how intervals are drawn."""
+
+    rate_hz: float = 100.0  # uniform grid every trajectory is resampled to (SPARC's reference rate)
+    path_cutoff_hz: float = 2.0  # low-pass before paths, angles, volume and economy
+    speed_cutoff_hz: float = 2.0  # low-pass of the tip before its speed (speeds, idle, movements, LDLJ, SPARC)
+    idle_speed_mmps: float = 5.0  # idle: tip speed under this
+    movement_speed_mmps: float = 5.0  # a movement: tip speed at or above this ...
+    movement_min_s: float = 0.3  # ... for at least this long ...
+    movement_merge_s: float = 0.2  # ... runs closer than this joined into one
+    min_segment_s: float = 2.0  # shorter segments are refused: the filters and SPARC need this much
+    draws: int = 200  # trajectories drawn from the estimate's uncertainty per segment
+    correlation_s: float = 1.5  # correlation time of the drawn errors (1/e of the autocorrelation)
+    sigma_scale: float = 0.45  # drawn errors' SD over the stream's sigma (see docs/metrics.md)
+    level: float = 0.95  # interval level
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.path_cutoff_hz < self.rate_hz / 2 or not 0.0 < self.speed_cutoff_hz < self.rate_hz / 2:
+            raise ValueError("metrics: the cut-off frequencies must lie between 0 and half the grid rate")
+        if self.draws < 0 or not 0.0 < self.level < 1.0 or self.correlation_s <= 0.0 or self.sigma_scale <= 0.0:
+            raise ValueError("metrics: draws >= 0, 0 < level < 1, correlation_s > 0 and sigma_scale > 0 are required")
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A trajectory on a uniform grid: t_s (n,), p_tip_base_m (n, 3), roll_rad (n,) cumulative roll
+    about the shaft, rcm_base_m (3,); for an estimate tip_sigma_m (n, 3) and roll_sigma_rad (n,)."""
+
+    t_s: np.ndarray
+    p_tip_base_m: np.ndarray
+    roll_rad: np.ndarray
+    rcm_base_m: np.ndarray
+    tip_sigma_m: np.ndarray | None = None
+    roll_sigma_rad: np.ndarray | None = None
+
+    def window(self, t0_s: float, t1_s: float) -> Motion:
+        """The samples with t0_s <= t < t1_s."""
+        sel = (self.t_s >= t0_s) & (self.t_s < t1_s)
+
+        def cut(x):
+            return None if x is None else x[sel]
+
+        return Motion(
+            self.t_s[sel], self.p_tip_base_m[sel], self.roll_rad[sel], self.rcm_base_m,
+            cut(self.tip_sigma_m), cut(self.roll_sigma_rad),
+        )  # fmt: skip
+
+
+def resample(
+    t_ns: np.ndarray,
+    p_tip_base_m: np.ndarray,
+    roll_rad: np.ndarray,
+    rcm_base_m: np.ndarray,
+    rate_hz: float,
+    tip_sigma_m: np.ndarray | None = None,
+    roll_sigma_rad: np.ndarray | None = None,
+    t0_ns: int | None = None,
+) -> Motion:
+    """A `Motion` on the grid t0 + k / rate_hz inside the samples' span, by linear interpolation
+    (stamps int64 ns, sorted; t0 defaults to the first stamp: give a shared t0 to put two
+    trajectories on one grid)."""
+    t_ns = np.asarray(t_ns, np.int64)
+    t0 = int(t_ns[0]) if t0_ns is None else int(t0_ns)
+    k0 = int(np.ceil((t_ns[0] - t0) * 1e-9 * rate_hz - 1e-9))
+    k1 = int(np.floor((t_ns[-1] - t0) * 1e-9 * rate_hz + 1e-9))
+    t_s = np.arange(k0, k1 + 1) / rate_hz
+    ts = (t_ns - t0) * 1e-9
+
+    def interp(y):
+        if y is None:
+            return None
+        y = np.asarray(y, dtype=float)
+        if y.ndim == 1:
+            return np.interp(t_s, ts, y)
+        return np.stack([np.interp(t_s, ts, y[:, j]) for j in range(y.shape[1])], 1)
+
+    return Motion(
+        t_s, interp(p_tip_base_m), interp(roll_rad), np.asarray(rcm_base_m, float),
+        interp(tip_sigma_m), interp(roll_sigma_rad),
+    )  # fmt: skip
+
+
+def segment_metrics(m: Motion, params: MetricsParams) -> dict[str, float]:
+    """Every metric of `METRICS` for one segment (see the module docstring and docs/metrics.md)."""
+    n, rate = len(m.t_s), params.rate_hz
+    if n / rate < params.min_segment_s:
+        raise ValueError(
+            f"the trajectory covers {n / rate:.2f} s; the metrics need at least {params.min_segment_s:g} s"
+        )
+    p = kin.lowpass(m.p_tip_base_m, rate, params.path_cutoff_hz)
+    p_v = kin.lowpass(m.p_tip_base_m, rate, params.speed_cutoff_hz)
+    roll = kin.lowpass(m.roll_rad, rate, params.path_cutoff_hz)
+    depth, u = kin.shaft_coordinates(p, m.rcm_base_m)
+    elevation, azimuth = kin.elevation_azimuth(u)
+    v = kin.speed(p_v, rate)
+    moves = kin.movements(v, rate, params.movement_speed_mmps * 1e-3, params.movement_min_s, params.movement_merge_s)
+    econ = np.array([kin.economy(p[a:b], m.rcm_base_m) for a, b in moves]).reshape(-1, 2)
+    straight, fulcrum = kin.economy(p, m.rcm_base_m)
+    return {
+        "duration_s": n / rate,
+        "path_length_mm": kin.path_length(p) * 1e3,
+        "depth_path_mm": kin.path_length(depth) * 1e3,
+        "angular_path_deg": float(np.rad2deg(kin.swept_angle(u))),
+        "elevation_path_deg": float(np.rad2deg(kin.path_length(elevation))),
+        "azimuth_path_deg": float(np.rad2deg(kin.path_length(azimuth))),
+        "roll_path_deg": float(np.rad2deg(kin.path_length(roll))),
+        "economy_straight": straight,
+        "economy_fulcrum": fulcrum,
+        "movement_economy_straight": float(np.nanmean(econ[:, 0])) if len(econ) else float("nan"),
+        "movement_economy_fulcrum": float(np.nanmean(econ[:, 1])) if len(econ) else float("nan"),
+        "working_volume_cm3": kin.working_volume(p) * 1e6,
+        "idle_time_s": kin.idle_time(v, rate, params.idle_speed_mmps * 1e-3),
+        "movements": float(len(moves)),
+        "mean_speed_mmps": float(np.mean(v)) * 1e3,
+        "peak_speed_mmps": float(np.max(v)) * 1e3,
+        "ldlj": ldlj(v, rate),
+        "sparc": sparc(v, rate),
+    }
+
+
+def correlated_noise(rng: np.random.Generator, n: int, dims: int, rate_hz: float, correlation_s: float) -> np.ndarray:
+    """Stationary Gaussian noise (n, dims), unit variance per column, smooth in time: white noise
+    convolved with a Gaussian kernel whose output's autocorrelation falls to 1/e at correlation_s."""
+    sd = max(correlation_s * rate_hz / 2.0, 1e-6)  # autocorrelation exp(-lag^2 / (4 sd^2))
+    half = int(np.ceil(4 * sd))
+    k = np.exp(-0.5 * (np.arange(-half, half + 1) / sd) ** 2)
+    k /= np.sqrt(np.sum(k**2))
+    white = rng.standard_normal((n + 2 * half, dims))
+    return fftconvolve(white, k[:, None], mode="valid", axes=0)
+
+
+def drawn_motion(m: Motion, rng: np.random.Generator, params: MetricsParams) -> Motion:
+    """One trajectory drawn about the estimate: each tip axis and the roll offset by its own sigma
+    times `correlated_noise` (axes drawn independently: the estimate carries no cross-covariance)."""
+    n = len(m.t_s)
+    z = correlated_noise(rng, n, 4, params.rate_hz, params.correlation_s)
+    k = params.sigma_scale
+    p = m.p_tip_base_m + (k * m.tip_sigma_m * z[:, :3] if m.tip_sigma_m is not None else 0.0)
+    roll = m.roll_rad + (k * m.roll_sigma_rad * z[:, 3] if m.roll_sigma_rad is not None else 0.0)
+    return replace(m, p_tip_base_m=p, roll_rad=roll)
+
+
+def draw_intervals(
+    m: Motion, point: dict[str, float], params: MetricsParams, seed: int = 0
+) -> dict[str, tuple[float, float]]:
+    """{metric: (low, high)}: the basic (reflected) interval from `params.draws` trajectories drawn
+    about the estimate. Drawn errors add to the estimate's own, so a metric that noise inflates
+    (a path length) is higher in the draws than at the estimate; reflecting the draws' quantiles
+    about the estimate's value (2 x - q_high, 2 x - q_low) puts the interval where the truth lies
+    if the estimate's error is like the drawn ones. Empty without draws or sigmas."""
+    if params.draws == 0 or m.tip_sigma_m is None:
+        return {}
+    rng = np.random.default_rng(seed)
+    rows = [segment_metrics(drawn_motion(m, rng, params), params) for _ in range(params.draws)]
+    out = {}
+    a = (1.0 - params.level) / 2.0
+    for key in METRICS:
+        vals = np.array([r[key] for r in rows], dtype=float)
+        vals = vals[np.isfinite(vals)]
+        x = point.get(key, float("nan"))
+        if key == "duration_s" or len(vals) == 0 or not np.isfinite(x):
+            continue
+        q_lo, q_hi = np.quantile(vals, [a, 1.0 - a])
+        out[key] = (float(2 * x - q_hi), float(2 * x - q_lo))
+    return out

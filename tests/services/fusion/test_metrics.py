@@ -1,0 +1,229 @@
+"""Skill-assessment metrics on synthetic profiles with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.fusion.metrics import kinematics as kin
+from services.fusion.metrics.assess import (
+    METRICS,
+    MetricsParams,
+    Motion,
+    correlated_noise,
+    draw_intervals,
+    resample,
+    segment_metrics,
+)
+from services.fusion.metrics.smoothness import dimensionless_jerk, ldlj, sparc
+
+RCM = np.array([0.65, 0.0, 0.30])
+
+
+def test_reference_profile_matches_the_published_implementation():
+    # the published implementation's test profile: a Gaussian speed exp(-5 t^2), t = -1..0.99 s, 100 Hz
+    t = np.arange(-1.0, 1.0, 0.01)
+    v = np.exp(-5.0 * t**2)
+    assert sparc(v, 100.0) == pytest.approx(-1.41403, abs=5e-6)
+    assert ldlj(v, 100.0) == pytest.approx(-5.81636, abs=5e-6)
+    assert dimensionless_jerk(v, 100.0) == pytest.approx(-335.746837, rel=1e-8)
+
+
+def test_minimum_jerk_movement_is_smooth_and_unchanged_by_its_scale_and_rate():
+    def min_jerk_speed(duration_s: float, distance: float, rate_hz: float) -> np.ndarray:
+        tau = np.arange(0.0, duration_s + 0.5 / rate_hz, 1.0 / rate_hz) / duration_s
+        return distance / duration_s * 30.0 * tau**2 * (1.0 - tau) ** 2
+
+    v = min_jerk_speed(1.0, 0.1, 100.0)
+    # analytically: v_peak = 1.875 D / T and the integral of (d2v/dt2)^2 is 720 D^2 / T^5, so the
+    # dimensionless jerk is 720 / 1.875^2 = 204.8 whatever D and T
+    assert ldlj(min_jerk_speed(1.0, 0.1, 1000.0), 1000.0) == pytest.approx(-np.log(720.0 / 1.875**2), abs=0.01)
+    # a single bell-shaped movement: SPARC close to the Gaussian reference profile's
+    t = np.arange(-1.0, 1.0, 0.01)
+    assert sparc(v, 100.0) == pytest.approx(sparc(np.exp(-5.0 * t**2), 100.0), abs=0.1)
+    # LDLJ is dimensionless: the same movement ten times longer in distance, or sampled twice as fast
+    assert ldlj(v, 100.0) == pytest.approx(ldlj(min_jerk_speed(1.0, 1.0, 100.0), 100.0), abs=1e-9)
+    assert ldlj(v, 100.0) == pytest.approx(ldlj(min_jerk_speed(1.0, 0.1, 200.0), 200.0), abs=0.05)
+    # two movements with a stop between them are less smooth than one
+    two = np.concatenate([v, v])
+    assert ldlj(two, 100.0) < ldlj(v, 100.0) - 1.0
+    assert sparc(two, 100.0) < sparc(v, 100.0) - 0.5
+
+
+def test_added_tremor_lowers_both_smoothness_metrics():
+    t = np.arange(-1.0, 1.0, 0.01)
+    v = np.exp(-5.0 * t**2)
+    shaky = v + 0.05 * np.sin(2 * np.pi * 6.0 * t)
+    assert sparc(shaky, 100.0) < sparc(v, 100.0)
+    assert ldlj(shaky, 100.0) < ldlj(v, 100.0)
+
+
+def test_smoothness_refuses_a_profile_without_motion():
+    with pytest.raises(ValueError, match="all zero"):
+        sparc(np.zeros(50), 100.0)
+    with pytest.raises(ValueError, match="no jerk"):
+        ldlj(np.full(50, 0.01), 100.0)
+
+
+def _line(n: int, direction: np.ndarray, length_m: float) -> np.ndarray:
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    start = RCM + 0.14 * np.array([np.sin(0.5), 0.0, -np.cos(0.5)])
+    return start + s * length_m * direction
+
+
+def test_path_and_depth_of_a_straight_insertion():
+    u = np.array([np.sin(0.5), 0.0, -np.cos(0.5)])
+    p = _line(501, u, 0.02)  # 20 mm straight in along the shaft
+    assert kin.path_length(p) == pytest.approx(0.02, rel=1e-9)
+    depth, u_est = kin.shaft_coordinates(p, RCM)
+    assert kin.path_length(depth) == pytest.approx(0.02, rel=1e-9)
+    assert kin.swept_angle(u_est) == pytest.approx(0.0, abs=1e-9)
+    straight, fulcrum = kin.economy(p, RCM)
+    assert straight == pytest.approx(1.0) and fulcrum == pytest.approx(1.0)
+
+
+def test_path_and_depth_of_a_circle_about_the_rcm():
+    # the tip on a cone about the vertical through the RCM: a circle of radius L sin(a), depth constant
+    L, a = 0.14, 0.4
+    phi = np.linspace(0.0, 2 * np.pi, 2001)
+    p = RCM + L * np.stack([np.sin(a) * np.cos(phi), np.sin(a) * np.sin(phi), -np.cos(a) * np.ones_like(phi)], 1)
+    assert kin.path_length(p) == pytest.approx(2 * np.pi * L * np.sin(a), rel=1e-5)
+    depth, u = kin.shaft_coordinates(p, RCM)
+    assert kin.path_length(depth) == pytest.approx(0.0, abs=1e-12)
+    elevation, azimuth = kin.elevation_azimuth(u)
+    assert kin.path_length(elevation) == pytest.approx(0.0, abs=1e-9)
+    assert kin.path_length(azimuth) == pytest.approx(2 * np.pi, rel=1e-9)
+    assert kin.swept_angle(u) == pytest.approx(2 * np.pi * np.sin(a), rel=1e-4)
+    straight, fulcrum = kin.economy(p, RCM)  # back to the start: no net progress
+    assert straight == pytest.approx(0.0, abs=1e-9) and fulcrum == pytest.approx(0.0, abs=1e-9)
+
+
+def test_back_and_forth_counts_every_stroke():
+    u = np.array([np.sin(0.5), 0.0, -np.cos(0.5)])
+    s = np.concatenate([np.linspace(0, 1, 101), np.linspace(1, 0, 101)[1:]] * 3)
+    p = RCM + 0.14 * u + 0.01 * s[:, None] * u  # 10 mm in and out, three times
+    assert kin.path_length(p) == pytest.approx(0.06, rel=1e-9)
+    depth, _ = kin.shaft_coordinates(p, RCM)
+    assert kin.path_length(depth) == pytest.approx(0.06, rel=1e-9)
+    # a sideways stroke changes the depth only by the second-order lengthening of the lever
+    side = np.array([0.0, 1.0, 0.0])
+    q = RCM + 0.14 * u + 0.01 * s[:, None] * side
+    depth_q, _ = kin.shaft_coordinates(q, RCM)
+    assert kin.path_length(q) == pytest.approx(0.06, rel=1e-9)
+    assert kin.path_length(depth_q) == pytest.approx(6 * (np.hypot(0.14, 0.01) - 0.14), rel=1e-6)
+
+
+def test_fulcrum_reference_of_a_pure_pivot_is_the_arc():
+    L, a = 0.14, 0.3
+    p0 = RCM + L * np.array([0.0, 0.0, -1.0])
+    p1 = RCM + L * np.array([np.sin(a), 0.0, -np.cos(a)])
+    assert kin.fulcrum_reference_length(p0, p1, RCM) == pytest.approx(L * a, rel=1e-9)
+    arc = RCM + L * np.stack([np.sin(np.linspace(0, a, 300)), np.zeros(300), -np.cos(np.linspace(0, a, 300))], 1)
+    straight, fulcrum = kin.economy(arc, RCM)
+    assert fulcrum == pytest.approx(1.0, rel=1e-4)
+    assert straight == pytest.approx(2 * np.sin(a / 2) / a, rel=1e-4)
+
+
+def test_roll_angle_accumulates_the_twist_about_the_shaft():
+    ang = np.concatenate([np.linspace(0, np.pi, 200), np.linspace(np.pi, 0.5, 100)])
+    q = np.stack([np.zeros_like(ang), np.zeros_like(ang), np.sin(ang / 2), np.cos(ang / 2)], 1)
+    roll = kin.roll_angle(q)
+    assert roll[-1] == pytest.approx(0.5, abs=1e-9)
+    assert kin.path_length(roll) == pytest.approx(np.pi + (np.pi - 0.5), rel=1e-9)
+
+
+def test_working_volume_of_a_box():
+    rng = np.random.default_rng(1)
+    corners = np.array([[x, y, z] for x in (0, 0.02) for y in (0, 0.01) for z in (0, 0.03)])
+    inside = rng.uniform([0, 0, 0], [0.02, 0.01, 0.03], size=(200, 3))
+    assert kin.working_volume(np.vstack([corners, inside])) == pytest.approx(0.02 * 0.01 * 0.03, rel=1e-9)
+    assert kin.working_volume(corners[:, :2].repeat(2, 0).reshape(-1, 2) @ np.eye(2, 3)) == 0.0  # flat
+
+
+def test_idle_time_and_movements_on_a_constructed_speed_profile():
+    rate = 100.0
+    v = np.zeros(1000)  # 10 s
+    v[100:300] = 0.02  # 2 s movement
+    v[350:380] = 0.02  # 0.3 s: a movement at the minimum duration
+    v[500:510] = 0.02  # 0.1 s: too short
+    v[600:700] = 0.02  # two runs 0.05 s apart: one movement
+    v[705:800] = 0.02
+    assert kin.idle_time(v, rate, 0.005) == pytest.approx((1000 - 200 - 30 - 10 - 100 - 95) / rate)
+    moves = kin.movements(v, rate, 0.005, min_duration_s=0.3, merge_gap_s=0.1)
+    assert moves == [(100, 300), (350, 380), (600, 800)]
+    assert kin.movements(v, rate, 0.005, min_duration_s=0.3, merge_gap_s=0.0) == [
+        (100, 300),
+        (350, 380),
+        (600, 700),
+        (705, 800),
+    ]
+
+
+def _motion(p: np.ndarray, rate: float, sigma_m: float | None = None) -> Motion:
+    n = len(p)
+    return Motion(
+        np.arange(n) / rate, p, np.zeros(n), RCM,
+        None if sigma_m is None else np.full((n, 3), sigma_m), None if sigma_m is None else np.full(n, 1e-3),
+    )  # fmt: skip
+
+
+def _pivot_and_stop(rate: float) -> np.ndarray:
+    """A minimum-jerk pivot of 0.3 rad about the RCM in 2 s, then 3 s still."""
+    t = np.arange(0.0, 5.0, 1.0 / rate)
+    tau = np.clip(t / 2.0, 0.0, 1.0)
+    a = 0.3 * (10 * tau**3 - 15 * tau**4 + 6 * tau**5)
+    return RCM + 0.14 * np.stack([np.sin(a), np.zeros_like(a), -np.cos(a)], 1)
+
+
+def test_segment_metrics_of_a_single_pivot():
+    params = MetricsParams()
+    m = segment_metrics(_motion(_pivot_and_stop(100.0), 100.0), params)
+    assert set(m) == set(METRICS)
+    assert m["duration_s"] == pytest.approx(5.0)
+    assert m["path_length_mm"] == pytest.approx(0.14 * 0.3 * 1e3, rel=0.01)
+    assert m["angular_path_deg"] == pytest.approx(np.rad2deg(0.3), rel=0.01)
+    assert m["elevation_path_deg"] == pytest.approx(np.rad2deg(0.3), rel=0.01)
+    assert m["depth_path_mm"] < 0.1  # the pivot keeps the depth; the low-pass bends it a little
+    assert m["economy_fulcrum"] == pytest.approx(1.0, rel=0.01)
+    assert m["economy_straight"] == pytest.approx(2 * np.sin(0.15) / 0.3, rel=0.01)
+    assert m["movements"] == 1
+    assert 3.0 < m["idle_time_s"] < 3.8  # the still end and the slow start and finish of the move
+    assert m["peak_speed_mmps"] == pytest.approx(1.875 * 0.14 * 0.3 / 2.0 * 1e3, rel=0.03)
+
+
+def test_a_segment_shorter_than_the_metrics_need_is_refused():
+    with pytest.raises(ValueError, match="at least 2 s"):
+        segment_metrics(_motion(_pivot_and_stop(100.0)[:150], 100.0), MetricsParams())
+
+
+def test_correlated_noise_has_unit_variance_and_the_stated_correlation_time():
+    z = correlated_noise(np.random.default_rng(3), 200_000, 1, 100.0, 1.0)[:, 0]
+    assert z.var() == pytest.approx(1.0, rel=0.05)
+    lag = 100  # 1 s: the autocorrelation is 1/e there
+    assert np.mean(z[:-lag] * z[lag:]) / z.var() == pytest.approx(np.exp(-1.0), abs=0.05)
+
+
+def test_intervals_contain_the_value_for_an_exact_estimate_and_widen_with_sigma():
+    p = _pivot_and_stop(100.0)
+    params = MetricsParams(draws=40)
+    narrow_m = _motion(p, 100.0, sigma_m=1e-5)
+    wide_m = _motion(p, 100.0, sigma_m=1e-3)
+    point = segment_metrics(narrow_m, params)
+    narrow = draw_intervals(narrow_m, point, params)
+    wide = draw_intervals(wide_m, point, params)
+    lo, hi = narrow["angular_path_deg"]
+    assert lo <= point["angular_path_deg"] <= hi
+    assert hi - lo < 0.5
+    assert (
+        wide["path_length_mm"][1] - wide["path_length_mm"][0]
+        > narrow["path_length_mm"][1] - narrow["path_length_mm"][0]
+    )
+    assert draw_intervals(_motion(p, 100.0), point, params) == {}  # no sigmas: no interval
+
+
+def test_resample_puts_two_streams_on_one_grid():
+    t_a = np.array([0, 4_000_000, 11_000_000, 20_000_000, 31_000_000], np.int64) + 5_000_000
+    x = np.linspace(0, 1, 5)[:, None] * np.ones((1, 3))
+    m = resample(t_a, x, np.zeros(5), RCM, 100.0, t0_ns=0)
+    assert np.allclose(m.t_s, [0.01, 0.02, 0.03])
+    assert np.allclose(m.p_tip_base_m[:, 0], np.interp([10e6, 20e6, 30e6], t_a, x[:, 0]))
