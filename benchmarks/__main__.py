@@ -104,6 +104,16 @@ def display_lag(out: str, _tmp: Path) -> list[Row]:
     ]
 
 
+def igtlink_lag(out: str, _tmp: Path) -> list[Row]:
+    r = _json_line(out)
+    ok = r["rate_hz"] >= 0.95 * r["configured_hz"]
+    return [
+        Row("igtlink (3D Slicer)", "transforms", r["rate_hz"], "Hz", f">= {0.95 * r['configured_hz']:g}", ok),
+        Row("igtlink (3D Slicer)", "state stamp -> client, p50", r["lag_p50_ms"], "ms", "", None),
+        Row("igtlink (3D Slicer)", "state stamp -> client, p95", r["lag_p95_ms"], "ms", "", None),
+    ]
+
+
 def cpu_share(out: str, _tmp: Path) -> list[Row]:
     r = _json_line(out)
     rows = []
@@ -147,6 +157,7 @@ BENCHMARKS: dict[str, tuple[str, list[str], list[str], Callable[[str, Path], lis
     ),
     "bus_latency": ("system_bus_latency", ["--json"], ["--json", "--seconds", "3"], bus_latency),
     "display_lag": ("dashboard_e2e", [], ["--seconds", "8"], display_lag),
+    "igtlink_lag": ("igtlink_lag", ["--json"], ["--json", "--seconds", "8"], igtlink_lag),
     "cpu_share": (
         "system_soak",
         ["--json", "--tier", "pixel", "--seconds", "120"],
@@ -164,6 +175,7 @@ HEADLINE: dict[str, tuple[str, str]] = {
     "recorder": ("x live rate", ">= 1"),
     "bus_latency": ("ms", "p99 < 5, 0 lost"),
     "display_lag": ("ms", "p50 <= 33 (paper)"),
+    "igtlink_lag": ("Hz", ">= 95 % of rate_hz"),
     "cpu_share": ("% of a core", "below the machine's cores"),
 }
 

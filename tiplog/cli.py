@@ -27,6 +27,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "vision": ("services.vision.cli", "vision tools: train the segmentation network, run on a file"),
     "record": ("services.recorder.cli", "record the bus to MCAP; control a running recorder; recover a file"),
     "info": ("services.recorder.info_cli", "duration, topics, rates, counts, gaps and metadata of a recording"),
+    "metrics": ("services.fusion.metrics_cli", "skill-assessment metrics of a recording, with their uncertainty"),
+    "export": ("tiplog.export.cli", "a recording's estimate as a LeRobot dataset, a Slicer sequence or CSV"),
 }
 
 

@@ -12,6 +12,7 @@ from foxglove_schemas_protobuf import (
     CompressedImage_pb2,
     FrameTransforms_pb2,
     RawImage_pb2,
+    SceneUpdate_pb2,
 )
 from google.protobuf import descriptor_pool, message_factory
 from google.protobuf.message import Message
@@ -25,6 +26,7 @@ TOPICS: dict[str, type[Message]] = {
     "device/mag": device_pb2.Mag,
     "device/status": device_pb2.DeviceStatus,
     "camera/image": RawImage_pb2.RawImage,
+    "camera/image/compressed": CompressedImage_pb2.CompressedImage,  # the recorder's archive (JPEG)
     "camera/info": CameraCalibration_pb2.CameraCalibration,
     "vision/observation": vision_pb2.VisionObservation,
     "vision/preview": CompressedImage_pb2.CompressedImage,
@@ -37,6 +39,8 @@ TOPICS: dict[str, type[Message]] = {
     "fusion/predicted": fusion_pb2.FusionState,
     # The estimated tool pose (base -> tool_estimate) for Foxglove's 3D panel beside bench/tf.
     "fusion/tf": FrameTransforms_pb2.FrameTransforms,
+    # The trocar and the tip's recent trail for Foxglove's 3D panel (base frame, 5 Hz).
+    "fusion/scene": SceneUpdate_pb2.SceneUpdate,
     "bench/robot": robot_pb2.RobotState,
     "bench/tf": FrameTransforms_pb2.FrameTransforms,
     "recorder/status": recorder_pb2.RecorderStatus,

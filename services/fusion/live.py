@@ -30,6 +30,7 @@ from services.fusion.messages import to_fusion_state
 from services.fusion.params import Params
 from services.fusion.publish import to_diagnostics, to_frame_transforms
 from services.fusion.runner import FusionRunner
+from services.fusion.scene import SCENE_PERIOD_NS, SceneTrail
 from services.fusion.warmup import warm_up
 from tiplog.bus import Bus, SampleInfo
 from tiplog.calibration import Calibration
@@ -88,6 +89,8 @@ class LiveFusion:
         self._pred_pub = bus.publisher("fusion/predicted", reliable=False)
         self._tf_pub = bus.publisher("fusion/tf")
         self._diag_pub = bus.publisher("fusion/diagnostics")
+        self._scene_pub = bus.publisher("fusion/scene", reliable=False)
+        self._trail = SceneTrail(calibration.rcm_base_m)
         self._log: McapWriter | None = None
         if input_log_file:
             self._log = McapWriter(input_log_file)
@@ -114,6 +117,7 @@ class LiveFusion:
         """Run the worker on this thread until `stop` is set; then close the input log."""
         next_diag = self._clock()
         next_pred = next_diag
+        next_scene = next_diag
         try:
             while not stop.is_set():
                 self._wake.wait(self._poll_s)
@@ -122,6 +126,9 @@ class LiveFusion:
                 if self._pred_period_ns and now >= next_pred:
                     next_pred = now + self._pred_period_ns
                     self._publish_prediction(now)
+                if now >= next_scene and len(self._trail):
+                    next_scene = now + SCENE_PERIOD_NS
+                    self._scene_pub.put(self._trail.message(now - (self._offset or 0)))
                 if now >= next_diag:
                     next_diag = now + self._diag_period_ns
                     self._diag_pub.put(self.diagnostics_message(now))
@@ -207,6 +214,7 @@ class LiveFusion:
         self._state_pub.put(to_fusion_state(s, lag_ms=lag_ms, seq=self.published))
         if self.published % self._tf_every == 0:
             self._tf_pub.put(to_frame_transforms(s))
+        self._trail.add(s.stamp_ns, s.p_tip_base_m)
         self.published += 1
 
     def _publish_settled(self, s: Any, t_now: int) -> None:

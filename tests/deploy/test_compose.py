@@ -22,7 +22,7 @@ from tiplog.bus import Bus, BusConfig
 
 COMPOSE = ROOT / "compose.yaml"
 ENV_EXAMPLE = ROOT / "config" / "cart.env.example"
-SERVICES = ["bench", "sensor_gateway", "vision", "fusion", "recorder", "dashboard"]
+SERVICES = ["bench", "sensor_gateway", "vision", "fusion", "recorder", "dashboard", "igtlink"]
 
 
 def env_file(path: Path) -> dict[str, str]:
@@ -97,6 +97,7 @@ def test_the_file_is_the_cart_the_issue_describes():
     assert any(d.endswith(":/dev/ttyACM0") for d in svc["sensor_gateway"]["devices"])
     assert "/dev/bus/usb:/dev/bus/usb" in svc["sensor_gateway"]["volumes"]
     assert svc["dashboard"]["ports"] == ["8000:8000"]
+    assert svc["igtlink"]["ports"] == ["127.0.0.1:18944:18944"]  # Slicer on the cart unless an interface is named
     assert svc["dashboard"]["environment"]["TIPLOG_DASHBOARD_VIEWER_TOKEN"] == "change-me-viewer"
     torch_free = (ROOT / "pyproject.toml").read_text().split("[project.optional-dependencies]")[0]
     assert "torch" not in torch_free
@@ -108,13 +109,14 @@ def test_each_container_command_starts_and_joins_the_bus(tmp_path):
 
     # vision stops at start without its shipped checkpoint (models/): checked once it is there
     wanted = SERVICES if (ROOT / "models" / "shaft_unet.pt").exists() else [n for n in SERVICES if n != "vision"]
-    port, dash_port = free_port(), free_port()
+    port, dash_port, igtl_port = free_port(), free_port(), free_port()
     calibration = tmp_path / "calibration.yaml"
     write_calibration(BenchConfig(scenario="static", calibration_file=str(calibration)))
     env = {**env_file(ENV_EXAMPLE), "TIPLOG_CALIBRATION_FILE": str(calibration)}
     text = substitute(COMPOSE.read_text(), env)
     text = text.replace("tcp/router:7447", f"tcp/127.0.0.1:{port}").replace("tcp/0.0.0.0:7447", f"tcp/127.0.0.1:{port}")
     text = text.replace("/calibration/calibration.yaml", str(calibration)).replace("port=8000", f"port={dash_port}")
+    text = text.replace("port=18944", f"port={igtl_port}")
     svc = yaml.safe_load(text)["services"]
     base_env = {**os.environ, "PYTHONPATH": str(ROOT), "TIPLOG_RECORDER__OUT_DIR": str(tmp_path / "rec")}
     base_env["TIPLOG_RECORDER__MIN_FREE_BYTES"] = "0"
