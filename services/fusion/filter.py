@@ -62,6 +62,7 @@ class State:
         "t_ns", "p", "v", "R", "bg", "ba", "brho", "P", "w_imu", "f_imu", "w_prev", "alpha_tool",
         "gyro_n", "accel_n", "last_tip_ns", "last_vision_ns", "vis_reject_run", "counts", "nis", "reacq",
         "t_init_ns", "tof_last", "depth_ref", "depth_var", "rest", "tip_held", "f_corr", "f_corr_ns", "acc", "acc_bin", "acc_t",
+        "noise",
     )  # fmt: skip
     # arrays a copy shares with its original: the filter replaces them, never changes them in place
     SHARED = ("w_imu", "f_imu", "f_corr")
@@ -76,6 +77,7 @@ class State:
         s.tip_held, s.w_imu, s.f_imu = self.tip_held, self.w_imu, self.f_imu
         s.f_corr, s.f_corr_ns = self.f_corr, self.f_corr_ns
         s.acc, s.acc_bin, s.acc_t = self.acc.copy(), self.acc_bin, self.acc_t
+        s.noise = self.noise.copy()
         s.p, s.v, s.R, s.P = self.p.copy(), self.v.copy(), self.R.copy(), self.P.copy()
         s.bg, s.ba, s.alpha_tool = self.bg.copy(), self.ba.copy(), self.alpha_tool.copy()
         s.rest = self.rest.copy()
@@ -90,6 +92,19 @@ class State:
 
 def _bump(d: dict, key: str, by: float = 1.0) -> None:
     d[key] = d.get(key, 0) + by
+
+
+# The streams whose measurement variance follows their innovations (`TrackingFilter._adapt`):
+# row of `State.noise` (variance factor, time of the stream's last innovation [ns], set aside).
+ADAPTIVE = {"vision_axis": 0, "vision_tip": 1, "tof": 2}
+
+
+def noise_init() -> np.ndarray:
+    """`State.noise` of a filter that has seen no innovation: every factor 1, nothing set aside."""
+    out = np.zeros((len(ADAPTIVE), 3))
+    out[:, 0] = 1.0
+    out[:, 1] = np.nan
+    return out
 
 
 class TrackingFilter:
@@ -122,6 +137,9 @@ class TrackingFilter:
         self.plane_var = (p.vision_plane_sigma_deg * DEG) ** 2
         self.offset_var = (p.vision_offset_sigma_mm * 1e-3) ** 2
         self.ray_var = (p.vision_ray_sigma_mm * 1e-3) ** 2
+        self._adapt_tau_s = p.noise_adapt_tau_s
+        self._adapt_max = p.noise_adapt_max
+        self._adapt_dt_max_s = p.noise_adapt_step_max_ms * 1e-3
         self._grav_k = np.array([p.gravity_sigma_deg * DEG, p.gravity_sigma_per_excess * DEG, p.gate_chi2_3])
         Q = np.zeros(N)
         if self.imu:
@@ -233,6 +251,7 @@ class TrackingFilter:
         s.acc = np.zeros(16)  # the accelerometer map's open bin (`kernels.gravity_step`)
         s.acc_bin = -(1 << 62)  # which bin (time // bin length) it is
         s.acc_t = 0  # its last sample's time
+        s.noise = noise_init()
         return s
 
     def init_from_vision(self, t_ns: int, obs: dict, f_imu: np.ndarray | None) -> State | None:
@@ -361,16 +380,54 @@ class TrackingFilter:
 
     def _update(
         self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
-        gain: tuple[int, int] | None = None,
+        gain: tuple[int, int] | None = None, scaled: bool = False,
     ) -> bool:  # fmt: skip
-        """`kernels.update`, the error states given gain (lo, hi) by default `_gain(s)`."""
+        """`kernels.update`, the error states given gain (lo, hi) by default `_gain(s)`. An
+        `ADAPTIVE` stream's variance is scaled by its factor, which its innovation then updates;
+        while the stream is set aside its innovation is only watched. `scaled`: r_var is
+        already scaled and this innovation already counted (a held tip applied)."""
         lo, hi = gain if gain is not None else self._gain(s)
-        status, nis, dx = kernels.update(s.P, H, y, r_var, chi2, lo, hi)
+        i = None if scaled else ADAPTIVE.get(name)
+        aside = False
+        if i is not None:
+            r_var = r_var * s.noise[i, 0]
+            aside = s.noise[i, 2] != 0.0
+        status, nis, dx = kernels.update(s.P, H, y, r_var, -1.0 if aside else chi2, lo, hi)
+        if i is not None:
+            self._adapt(s, name, nis, len(y), chi2)
         if status:
-            _bump(s.counts, f"rejected:{name}:innovation")
+            _bump(s.counts, f"rejected:{name}:{'set_aside' if aside else 'innovation'}")
             return False
         self._apply(s, name, nis, dx)
         return True
+
+    def _adapt(self, s: State, name: str, nis: float, m: int, gate: float) -> None:
+        """Innovation-based noise matching of one `ADAPTIVE` stream: its variance factor
+        lambda follows the stream's NIS per degree of freedom z (computed with lambda R, capped
+        at the gate's gate/m so that one gross outlier moves it little): lambda <- lambda (1 +
+        a (z - 1)), a = dt / noise_adapt_tau_s (dt since the stream's previous innovation, at
+        most noise_adapt_step_max_ms), kept within [1, noise_adapt_max]. A stream as noisy as
+        assumed stays at 1 (its NIS averages at most m); one k times noisier in variance settles
+        near k, so that it is weighed less instead of being gated out frame after frame. At the
+        ceiling the stream is set aside (its updates not applied, its innovations still
+        watched), and it returns once lambda has fallen to half the ceiling."""
+        tau = self._adapt_tau_s
+        if not tau > 0.0:
+            return
+        row = s.noise[ADAPTIVE[name]]
+        last, row[1] = row[1], float(s.t_ns)
+        if last != last:
+            return
+        a = min(1.0, min(max(s.t_ns - last, 0.0) * 1e-9, self._adapt_dt_max_s) / tau)
+        z = min(nis / m, gate / m) if nis == nis else gate / m
+        lam = min(max(row[0] * (1.0 + a * (z - 1.0)), 1.0), self._adapt_max)
+        row[0] = lam
+        if row[2] == 0.0 and lam >= self._adapt_max:
+            row[2] = 1.0
+            _bump(s.counts, f"set_aside:{name}")
+        elif row[2] != 0.0 and lam <= 0.5 * self._adapt_max:
+            row[2] = 0.0
+            _bump(s.counts, f"returned:{name}")
 
     def _apply(self, s: State, name: str, nis: float, dx: np.ndarray) -> None:
         _bump(s.counts, f"updates:{name}")
@@ -390,12 +447,19 @@ class TrackingFilter:
         had itself replaced a dropped one is applied, so a state moving fast against vision
         (without the IMU, or after a gross error got in) is never left to vision's gate alone."""
         prm = self.prm
-        r_var = np.full(2, self.ray_var)
+        row = s.noise[ADAPTIVE["vision_tip"]]
+        r_var = np.full(2, self.ray_var * row[0])
         held, s.tip_held = s.tip_held, None
         gate = prm.gate_chi2_2
+        if row[2] != 0.0:  # set aside: watched only
+            status, nis, _ = kernels.update(s.P, H, y, r_var, -1.0, *self._gain(s))
+            self._adapt(s, "vision_tip", nis, 2, gate)
+            _bump(s.counts, "rejected:vision_tip:set_aside")
+            return False
         # switched off (0) or at the gate, nothing passes the gate and fails the confirmation
         confirm = prm.tip_confirm_chi2 if 0.0 < prm.tip_confirm_chi2 < gate else gate
         status, nis, dx = kernels.update(s.P, H, y, r_var, confirm, *self._gain(s))
+        self._adapt(s, "vision_tip", nis, 2, gate)
         if status == 0:
             if held is not None:
                 _bump(s.counts, "rejected:vision_tip:unconfirmed")
@@ -413,7 +477,7 @@ class TrackingFilter:
             if not agree:
                 _bump(s.counts, "rejected:vision_tip:unconfirmed")
             if agree or held[2]:
-                return self._update(s, H, y, r_var, gate, "vision_tip")
+                return self._update(s, H, y, r_var, gate, "vision_tip", scaled=True)
         s.tip_held = (s.t_ns, resid_cam, held is not None)
         _bump(s.counts, "deferred:vision_tip")
         return False

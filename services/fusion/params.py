@@ -210,6 +210,13 @@ class Params:
     junction_min_sin2: float = 0.45
     vision_lock_ms: float = 500.0
     # --- innovation gating and divergence ----------------------------------------------
+    # innovation-based noise matching of the vision axis, the vision tip and the ToF
+    # (`TrackingFilter._adapt`): each stream's variance factor follows its NIS with this time
+    # constant, within [1, noise_adapt_max]; at the ceiling the stream is set aside until the
+    # factor halves. 0 switches it off
+    noise_adapt_tau_s: float = 3.0
+    noise_adapt_max: float = 100.0
+    noise_adapt_step_max_ms: float = 200.0
     gate_chi2_1: float = 10.83  # 99.9 % of chi2 with 1 degree of freedom
     gate_chi2_2: float = 13.82
     gate_chi2_4: float = 18.47
@@ -250,6 +257,8 @@ class Params:
                 raise ParamsError(f"fusion parameter {f.name}: must be a finite number (got {v!r})")
             if v < 0:
                 raise ParamsError(f"fusion parameter {f.name}: must be >= 0 (got {v})")
+        if self.noise_adapt_max < 1.0:
+            raise ParamsError(f"fusion parameter noise_adapt_max: must be >= 1 (got {self.noise_adapt_max})")
         for name in ("rcm_every", "alpha_window"):  # gravity_every may be 0: no gravity updates
             if getattr(self, name) < 1:
                 raise ParamsError(f"fusion parameter {name}: must be >= 1 (got {getattr(self, name)})")

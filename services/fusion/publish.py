@@ -68,6 +68,11 @@ def to_diagnostics(
     m.inputs = _u64(inputs)
     m.prediction_lag_ms = float(prediction_lag_ms)
     m.queue_drops = _u64(queue_drops)
+    for k, v in (diag.get("noise_scale") or {}).items():
+        m.noise_scale[str(k)] = float(v)
+    for k, v in (diag.get("set_aside") or {}).items():
+        m.set_aside[str(k)] = _u64(v)
+    m.aside.extend(str(k) for k in diag.get("aside") or ())
     return m
 
 

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from services.fusion.filter import State, TrackingFilter
+from services.fusion.filter import ADAPTIVE, State, TrackingFilter
 from services.fusion.init import initial_rotation, shaft_from_tilt
 from services.fusion.params import SENSORS, Params, mode_name
 from services.fusion.sample import StateSample, finite_sample
@@ -72,6 +72,7 @@ class _Track:
         "carried",
         "carried_nis",
         "map_mark",
+        "noise",
     )
 
     def __init__(self) -> None:
@@ -85,6 +86,9 @@ class _Track:
         self.carried: Counter[str] = Counter()
         self.carried_nis: Counter[str] = Counter()
         self.map_mark: tuple[int, ...] = ()  # the filter's maps' mark() when this was taken
+        # the streams' noise factors of the state a reset discarded (`State.noise`): what a
+        # stream's innovations taught is kept for the next state; None before any reset
+        self.noise: np.ndarray | None = None
 
     def copy(self) -> _Track:
         t = _Track.__new__(_Track)
@@ -99,6 +103,7 @@ class _Track:
         t.carried = self.carried
         t.carried_nis = self.carried_nis
         t.map_mark = self.map_mark
+        t.noise = self.noise  # replaced at a reset, never changed in place
         return t
 
 
@@ -275,11 +280,16 @@ class FusionRunner:
         updates, rejected, deferred = kind("updates"), kind("rejected"), kind("deferred")
         rejected.update(self.dropped)
         nis = {k: v / max(updates.get(k, 0), 1) for k, v in nis_sum.items()}
+        noise = s.noise if s is not None else tr.noise
         return {
             "updates": updates,
             "rejected": rejected,
             "deferred": deferred,
             "nis": nis,
+            # each ADAPTIVE stream's variance factor now, the times it was set aside, those set aside now
+            "noise_scale": {} if noise is None else {k: float(noise[i, 0]) for k, i in ADAPTIVE.items()},
+            "set_aside": kind("set_aside"),
+            "aside": [] if noise is None else [k for k, i in ADAPTIVE.items() if noise[i, 2] != 0.0],
             "rewinds": int(self.stats["rewinds"]),
             "max_rewind_ms": float(self.stats["max_rewind_ms"]),
             "lag_ms": self.delay_ns * 1e-6,
@@ -411,6 +421,7 @@ class FusionRunner:
                     tr.carried, tr.carried_nis = Counter(tr.carried), Counter(tr.carried_nis)
                     tr.carried.update(s.counts)
                     tr.carried_nis.update(s.nis)
+                    tr.noise = s.noise.copy()
                     tr.state = None
                     tr.reset_ns = t
                     tr.resets += 1
@@ -433,6 +444,7 @@ class FusionRunner:
                 # gravity would be removed along the wrong axis (live, vision can come first).
                 tr.state = f.init_from_vision(t, payload, tr.f_last if f.imu else None)
                 if tr.state is not None:
+                    self._carry_noise(tr.state)
                     tr.reset_ns = None
                     if tr.neutral_u is None:
                         tr.neutral_u = tr.state.R[:, 2].copy()
@@ -448,6 +460,13 @@ class FusionRunner:
                 tr.map_mark = tuple([mark() for mark in self._marks])
             self._snap_keys.append(key)
             self._snaps.append(tr.copy())
+
+    def _carry_noise(self, s: State) -> None:
+        """A new state after a reset takes the discarded one's noise factors (not the time of
+        each stream's last innovation: the first after the restart only restarts the clock)."""
+        if self._track.noise is not None:
+            s.noise = self._track.noise.copy()
+            s.noise[:, 1] = np.nan
 
     def _start_without_vision(self, t: int) -> bool:
         """Whether a filter with no state starts from the IMU and ToF: always without vision;
@@ -472,6 +491,7 @@ class FusionRunner:
         s.P[6:9, 6:9] *= 25.0
         if self.filt.vision:  # a restart after a reset while the view was lost: the diagnostics say so
             s.counts["updates:restart_without_vision"] = 1
+        self._carry_noise(s)
         tr.state = s
         tr.reset_ns = None
         if tr.neutral_u is None:

@@ -153,6 +153,10 @@
       for (const [k, v] of Object.entries(diag.rejected || {})) drows.push([[`rejected ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.deferred || {})) drows.push([[`deferred ${k}`, String(v)]]);
       for (const [k, v] of Object.entries(diag.innovation_nis || {})) drows.push([[`NIS ${k}`, fmt(v, 2)]]);
+      const aside = new Set(diag.aside || []);
+      for (const [k, v] of Object.entries(diag.noise_scale || {}))
+        drows.push([[`noise factor ${k}`, fmt(v, 1) + (aside.has(k) ? " (set aside)" : "")]]);
+      for (const [k, v] of Object.entries(diag.set_aside || {})) drows.push([[`set aside ${k}`, String(v)]]);
     } else drows.push([["diagnostics", "none received"]]);
     fillTable($("diagnostics").tBodies[0], drows);
     const env = st.envelope;
