@@ -11,6 +11,7 @@ what is allowed; services turn it into exit status 2.
 
 from __future__ import annotations
 
+import ipaddress
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -158,3 +159,14 @@ def load_config(
 def dump(config: BaseModel) -> str:
     """The resolved configuration as one line of JSON, for the log and the recorder."""
     return config.model_dump_json()
+
+
+def host_is_loopback(host: str) -> bool:
+    """127.0.0.0/8, ::1 and 'localhost' are loopback; anything else (0.0.0.0 above all) is not:
+    what a service with no authentication binds to unless told to serve a network."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

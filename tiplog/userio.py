@@ -279,3 +279,20 @@ def atomic_output(path: str | os.PathLike, force: bool = False) -> Iterator[Path
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def plots_folder(arg: str | None) -> Path | None:
+    """A `--plots FOLDER` option checked before any work: None when not given; refused when it
+    names a file, when its parent is not a writable folder, or without matplotlib."""
+    if not arg:
+        return None
+    plots = Path(arg)
+    if plots.exists() and not plots.is_dir():
+        raise UserError(f"{plots}: exists and is not a folder")
+    if not plots.parent.is_dir() or not os.access(plots.parent, os.W_OK):
+        raise UserError(f"{plots}: cannot create the folder here")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise UserError("--plots needs matplotlib (pip install 'tiplog[plots]')") from None
+    return plots

@@ -8,11 +8,9 @@ command line and is logged at start. They come from the environment
 
 from __future__ import annotations
 
-import ipaddress
-
 from pydantic import Field, field_validator
 
-from tiplog.config import ServiceConfig
+from tiplog.config import ServiceConfig, host_is_loopback
 
 
 class DashboardConfig(ServiceConfig):
@@ -74,13 +72,3 @@ class DashboardConfig(ServiceConfig):
                 "authentication; set foxglove_allow_remote: true to serve it there anyway"
             )
         return None
-
-
-def host_is_loopback(host: str) -> bool:
-    """127.0.0.0/8, ::1 and 'localhost' are loopback; anything else (0.0.0.0 above all) is not."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False

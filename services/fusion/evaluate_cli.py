@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -35,7 +34,7 @@ from services.fusion.evaluation import (
 )
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import read_metadata
-from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
+from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file, plots_folder
 
 log = logging.getLogger("tiplog.evaluate")
 STATIC_PROTOCOLS = ("translation", "rotation")
@@ -76,21 +75,6 @@ def protocol_of(path: Path) -> str:
     if not proto or "trials" not in md:
         raise UserError(f"{path}: not a bench session with ground truth (no session.protocol / trials metadata)")
     return proto
-
-
-def _plots_dir(arg: str | None) -> Path | None:
-    if not arg:
-        return None
-    plots = Path(arg)
-    if plots.exists() and not plots.is_dir():
-        raise UserError(f"{plots}: exists and is not a folder")
-    if not plots.parent.is_dir() or not os.access(plots.parent, os.W_OK):
-        raise UserError(f"{plots}: cannot create the folder here")
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise UserError("--plots needs matplotlib (pip install 'tiplog[plots]')") from None
-    return plots
 
 
 def _planned_plots(session: Path, proto: str, args: argparse.Namespace) -> list[str]:
@@ -153,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     if args.estimate:
         input_mcap(args.estimate)  # an input before the outputs, which must not replace it
     output_file(args.json_out, args.force)
-    plots = _plots_dir(args.plots)
+    plots = plots_folder(args.plots)
     jobs = _jobs(args.jobs)
     proto = protocol_of(session)
     try:

@@ -16,16 +16,14 @@ import argparse
 import json
 import logging
 import math
-import os
 import re
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from services.fusion.metrics.assess import METRICS, MetricsParams, draw_intervals, segment_metrics
 from services.fusion.metrics_data import Inputs, describe, load
-from tiplog.userio import UserError, atomic_output, input_mcap, output_file
+from tiplog.userio import UserError, atomic_output, input_mcap, output_file, plots_folder
 
 log = logging.getLogger("tiplog.metrics")
 NONNEGATIVE = {k for k in METRICS if k not in ("ldlj", "sparc")}
@@ -42,21 +40,6 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--draws", type=int, default=MetricsParams.draws, help="trajectories drawn per segment")
     p.add_argument("--force", action="store_true", help="overwrite existing result or plot files")
     p.set_defaults(func=run)
-
-
-def _plots_dir(arg: str | None) -> Path | None:
-    if not arg:
-        return None
-    plots = Path(arg)
-    if plots.exists() and not plots.is_dir():
-        raise UserError(f"{plots}: exists and is not a folder")
-    if not plots.parent.is_dir() or not os.access(plots.parent, os.W_OK):
-        raise UserError(f"{plots}: cannot create the folder here")
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise UserError("--plots needs matplotlib (pip install 'tiplog[plots]')") from None
-    return plots
 
 
 def plot_names(inputs: Inputs) -> list[str]:
@@ -167,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--draws: must be 0 or more, got {args.draws}")
     if args.json_out:
         output_file(args.json_out, args.force)
-    plots = _plots_dir(args.plots)
+    plots = plots_folder(args.plots)
     params = MetricsParams(draws=args.draws)
     inputs = load(recording, estimate, args.segments, params.rate_hz)
     _check_lengths(inputs, params)

@@ -11,7 +11,6 @@ without one `TrocarToReference` is not sent.
 
 from __future__ import annotations
 
-import ipaddress
 import logging
 import threading
 import time
@@ -26,7 +25,7 @@ from services.igtlink.server import BroadcastServer
 from tiplog.bus import Bus, SampleInfo
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.clock import now_ns, wall_ns
-from tiplog.config import ServiceConfig
+from tiplog.config import ServiceConfig, host_is_loopback
 from tiplog.service import ServiceContext, run_service
 from tiplog.v1.fusion_pb2 import FusionState
 
@@ -71,21 +70,12 @@ class IgtlinkConfig(ServiceConfig):
 
     @model_validator(mode="after")
     def _remote_allowed(self) -> IgtlinkConfig:
-        if not _is_loopback(self.host) and not self.allow_remote:
+        if not host_is_loopback(self.host) and not self.allow_remote:
             raise ValueError(
                 f"host: {self.host} is not loopback and OpenIGTLink has no authentication; "
                 "set allow_remote: true to serve it there anyway"
             )
         return self
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 # A state this much before its due time still goes out: arrival stamps jitter by a fraction of
