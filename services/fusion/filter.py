@@ -380,12 +380,13 @@ class TrackingFilter:
 
     def _update(
         self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
-        gain: tuple[int, int] | None = None, scaled: bool = False,
+        gain: tuple[int, int] | None = None, scaled: bool = False, adapt: bool = True,
     ) -> bool:  # fmt: skip
         """`kernels.update`, the error states given gain (lo, hi) by default `_gain(s)`. An
         `ADAPTIVE` stream's variance is scaled by its factor, which its innovation then updates;
         while the stream is set aside its innovation is only watched. `scaled`: r_var is
-        already scaled and this innovation already counted (a held tip applied)."""
+        already scaled and this innovation already counted (a held tip applied); `adapt`
+        False: scaled, but the innovation does not move the factor."""
         lo, hi = gain if gain is not None else self._gain(s)
         i = None if scaled else ADAPTIVE.get(name)
         aside = False
@@ -393,7 +394,7 @@ class TrackingFilter:
             r_var = r_var * s.noise[i, 0]
             aside = s.noise[i, 2] != 0.0
         status, nis, dx = kernels.update(s.P, H, y, r_var, -1.0 if aside else chi2, lo, hi)
-        if i is not None:
+        if i is not None and adapt:
             self._adapt(s, name, nis, len(y), chi2)
         if status:
             _bump(s.counts, f"rejected:{name}:{'set_aside' if aside else 'innovation'}")
@@ -562,7 +563,10 @@ class TrackingFilter:
             record = s.t_ns, tmap.key(s.R, s.p), range_m - (rho - s.brho)
         y = np.array([range_m - rho])
         dt_tof = (s.t_ns - s.tof_last[0]) * 1e-9  # since the last range applied
-        ok = self._update(s, H, y, r_var, self.prm.gate_chi2_1, "tof")
+        # the range's innovations tell of its noise only while vision tips tie the depth: held,
+        # they carry the state's own drift (a heading lost in a blackout), and a factor grown
+        # from that would loosen the one sensor left holding the depth
+        ok = self._update(s, H, y, r_var, self.prm.gate_chi2_1, "tof", adapt=free)
         self._anchor_depth(s, dt_tof)
         if ok:
             s.tof_last = (s.t_ns, range_m)

@@ -89,7 +89,9 @@ def test_images_published_bad_size_counted_and_reconnected(bus_pair_configs, tmp
     m = col.images[0]
     assert (m.width, m.height, m.encoding, m.step, m.frame_id) == (32, 24, "rgb8", 96, "camera")
     pixel = np.frombuffer(m.data, np.uint8).reshape(24, 32, 3)[0, 0]
-    assert tuple(pixel) == (200, 100, 0)  # RGB of the first image
+    # RGB of one of the folder's images (BGR on disk); which one comes first depends on when
+    # the subscriber was matched, and a loaded host can miss the first frame
+    assert tuple(int(c) for c in pixel) in {(200, 100, 10 * k) for k in range(3)}, pixel
     stamps = [x.timestamp.ToNanoseconds() for x in col.images]
     assert all(s > 0 for s in stamps) and stamps == sorted(stamps)
     assert all((x.width, x.height) == (32, 24) for x in col.images)  # the bad frame never went out
