@@ -526,9 +526,8 @@ class TrackingFilter:
         no gain on any other state, so that no other state's variance shrinks through its
         correlation with the bias. Without vision the heading's error is mostly not the bias's
         doing (the ToF's and the accelerometer's pose-locked errors turn it too), and a rest
-        between blocks took the heading's sigma from 8-10 deg to 2-3 deg while the heading was
-        7-34 deg off (tuning seeds 1000-1003, IMU+ToF, before the depth sweep), which then
-        could not pull it back."""
+        between blocks would shrink the heading's sigma several times while the heading itself
+        stayed tens of degrees off, and a heading that sure of itself cannot be pulled back."""
         gain = (IBG.start, IBG.stop) if self.prm.rest_bias_only and not self.brho_free(s) else None
         return self._update(s, self._rest_H, s.rest[25:28] - s.bg, self._rest_var, self.prm.gate_chi2_3, "rest", gain)
 

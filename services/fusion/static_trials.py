@@ -11,24 +11,24 @@ the gyro alone. Its bias is measured at both ends, as the mean rate over each wi
 where the tool is at rest; across the move it is the mean of a random walk pinned at the two,
 moving in proportion to the walk's variance as the filter models it (`gyro_bias_rw_dps_rts`,
 `gyro_bias_rw_dps_rts_per_radps`): where the tool turned, since the bias moves in motion. With
-W_pre's rate alone the gyro carried the roll trials 0.59-0.77 deg RMS off on tuning seeds
-1000-1011, pinned at both ends 0.21-0.45 deg. The causal filter
+W_pre's rate alone the bias that moved during a roll trial is carried across it wrong; pinned at
+both ends, the walk takes the part of it the motion explains. The causal filter
 takes each window's accelerometer and vision directions as if their errors were white, so it
 ends W_post on that window's own pose-locked errors (0.21 deg for the accelerometer at each
 pose, about twice that in roll about a shaft 30 deg from vertical); the gyro's error across a
 move grows with the angle turned (gain, mounting, the bias moving in motion) and is far smaller
 for small moves. The two relative rotations are blended with weight
 sigma_a^2 / (sigma_a^2 + (k theta)^2) on the gyro's (sigma_a = `relrot_absolute_deg`, k =
-`relrot_gyro_per_deg`, theta the angle turned; both set on tuning seeds 1000-1011, k with the
-bias pinned at both ends; see docs/fusion-live.md). The gyro link turns the
+`relrot_gyro_per_deg`, theta the angle turned; k is the gyro's error per degree turned with
+the bias pinned at both ends; see docs/fusion-live.md). The gyro link turns the
 gyro's rates through the IMU mounting as the filter has learnt it by the session's end.
 
 The mounting is learnt in the rotation protocol only, and only from a calibration that does not
 state how well it knows it (`R_tool_imu_sd_deg`; `tiplog calibrate` states its fit's, 0.09 deg
 on the bench, better than the 0.01-0.19 deg that the trials teach). A translation trial turns the
 tool by a few degrees, and the accelerometer's pose-locked errors between its two windows (0.21
-deg per pose) then read as a mounting error many times larger, which the next trial takes back:
-with it, the translation RMS of tuning seed 1000 went from 0.465 to 0.675 mm. Otherwise the
+deg per pose) then read as a mounting error many times larger, which the next trial takes back,
+and the translation error grows by half. Otherwise the
 calibration's mounting is held (`init_mount_deg` 0), unless the caller gives its own parameters.
 """
 
