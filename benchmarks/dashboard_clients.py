@@ -11,7 +11,6 @@ process puts FusionState at 200 Hz.
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import threading
@@ -20,8 +19,7 @@ import time
 import httpx
 import numpy as np
 
-from benchmarks.dashboard_lag import ROOT, _client, _cpu_s, _free_port, _wait_http
-from tiplog.bus import Bus, BusConfig
+from benchmarks.dashboard_lag import ROOT, _client, _cpu_s, dashboard_on_bus
 
 TARGET_P99_MS = 100.0
 TIMEOUT_S = 0.5  # what the probe used: a slower answer counts as a timeout
@@ -42,52 +40,37 @@ def _poll(url: str, period_s: float, out: list[float], timeouts: list[int], stop
 
 
 def run(seconds: float, clients: int, rate_hz: float, poll_hz: float) -> dict[str, float]:
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    prefix = f"cli{_free_port()}/"
-    port = _free_port()
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    with Bus(BusConfig(mode="router", listen=[endpoint], connect=[], prefix=prefix)):
-        dash = subprocess.Popen(
-            [sys.executable, "-m", "services.dashboard", "--connect", endpoint, "--prefix", prefix]
-            + ["--set", f"port={port}", "--log-level", "WARNING"],
+    with dashboard_on_bus("cli") as (endpoint, prefix, port, dash, env):
+        stop = threading.Event()
+        samples: list[list[tuple[float, float]]] = [[] for _ in range(clients)]
+        threads = [
+            threading.Thread(target=_client, args=(f"ws://127.0.0.1:{port}/ws", samples[i], stop), daemon=True)
+            for i in range(clients)
+        ]
+        for t in threads:
+            t.start()
+        lat_ms: list[float] = []
+        timeouts: list[int] = []
+        poller = threading.Thread(
+            target=_poll, args=(f"http://127.0.0.1:{port}", 1.0 / poll_hz, lat_ms, timeouts, stop), daemon=True
+        )
+        cpu0, wall0 = _cpu_s(dash.pid), time.monotonic()
+        publisher = subprocess.Popen(
+            [sys.executable, "-m", "benchmarks.dashboard_lag", "--publisher", endpoint, prefix]
+            + ["--seconds", str(seconds + 3), "--rate", str(rate_hz)],
             cwd=ROOT,
             env=env,
         )
-        try:
-            _wait_http(port, dash)
-            stop = threading.Event()
-            samples: list[list[tuple[float, float]]] = [[] for _ in range(clients)]
-            threads = [
-                threading.Thread(target=_client, args=(f"ws://127.0.0.1:{port}/ws", samples[i], stop), daemon=True)
-                for i in range(clients)
-            ]
-            for t in threads:
-                t.start()
-            lat_ms: list[float] = []
-            timeouts: list[int] = []
-            poller = threading.Thread(
-                target=_poll, args=(f"http://127.0.0.1:{port}", 1.0 / poll_hz, lat_ms, timeouts, stop), daemon=True
-            )
-            cpu0, wall0 = _cpu_s(dash.pid), time.monotonic()
-            publisher = subprocess.Popen(
-                [sys.executable, "-m", "benchmarks.dashboard_lag", "--publisher", endpoint, prefix]
-                + ["--seconds", str(seconds + 3), "--rate", str(rate_hz)],
-                cwd=ROOT,
-                env=env,
-            )
-            time.sleep(2.0)  # benchmark only: the publisher's first states reach the clients
-            poller.start()
-            time.sleep(seconds)
-            served = httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=10).json().get("websocket", {})
-            cpu_share = (_cpu_s(dash.pid) - cpu0) / (time.monotonic() - wall0)
-            stop.set()
-            poller.join(5)
-            for t in threads:
-                t.join(5)
-            publisher.wait(60)
-        finally:
-            dash.terminate()
-            dash.wait(10)
+        time.sleep(2.0)  # benchmark only: the publisher's first states reach the clients
+        poller.start()
+        time.sleep(seconds)
+        served = httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=10).json().get("websocket", {})
+        cpu_share = (_cpu_s(dash.pid) - cpu0) / (time.monotonic() - wall0)
+        stop.set()
+        poller.join(5)
+        for t in threads:
+            t.join(5)
+        publisher.wait(60)
     lat = np.array(lat_ms)
     if lat.size == 0:
         raise RuntimeError("GET /api/state never answered")

@@ -20,6 +20,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -92,9 +94,13 @@ def _client(url: str, out: list[tuple[float, float]], stop: threading.Event) -> 
                 out.append(((msg["sent_ns"] - stamp) / 1e6, (recv_ns - stamp) / 1e6))
 
 
-def run(seconds: float, clients: int, rate_hz: float) -> dict[str, float]:
+@contextmanager
+def dashboard_on_bus(tag: str) -> Iterator[tuple[str, str, int, subprocess.Popen, dict[str, str]]]:
+    """A router bus in this process on a free port and the dashboard service connected to it,
+    answering HTTP: (endpoint, prefix, port, dashboard process, env for further processes).
+    The dashboard is stopped on exit, whatever happened."""
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    prefix = f"lag{_free_port()}/"
+    prefix = f"{tag}{_free_port()}/"
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     with Bus(BusConfig(mode="router", listen=[endpoint], connect=[], prefix=prefix)):
@@ -106,32 +112,37 @@ def run(seconds: float, clients: int, rate_hz: float) -> dict[str, float]:
         )
         try:
             _wait_http(port, dash)
-            samples: list[list[tuple[float, float]]] = [[] for _ in range(clients)]
-            stop = threading.Event()
-            threads = [
-                threading.Thread(target=_client, args=(f"ws://127.0.0.1:{port}/ws", samples[i], stop), daemon=True)
-                for i in range(clients)
-            ]
-            for t in threads:
-                t.start()
-            cpu0, wall0 = _cpu_s(dash.pid), time.monotonic()
-            pub = subprocess.run(
-                [sys.executable, "-m", "benchmarks.dashboard_lag", "--publisher", endpoint, prefix]
-                + ["--seconds", str(seconds), "--rate", str(rate_hz)],
-                cwd=ROOT,
-                env=env,
-                timeout=seconds + 60,
-            )
-            cpu_share = (_cpu_s(dash.pid) - cpu0) / (time.monotonic() - wall0)
-            time.sleep(0.5)  # benchmark only: the last batch
-            stop.set()
-            for t in threads:
-                t.join(5)
-            if pub.returncode:
-                raise RuntimeError(f"publisher exited with {pub.returncode}")
+            yield endpoint, prefix, port, dash, env
         finally:
             dash.terminate()
             dash.wait(10)
+
+
+def run(seconds: float, clients: int, rate_hz: float) -> dict[str, float]:
+    with dashboard_on_bus("lag") as (endpoint, prefix, port, dash, env):
+        samples: list[list[tuple[float, float]]] = [[] for _ in range(clients)]
+        stop = threading.Event()
+        threads = [
+            threading.Thread(target=_client, args=(f"ws://127.0.0.1:{port}/ws", samples[i], stop), daemon=True)
+            for i in range(clients)
+        ]
+        for t in threads:
+            t.start()
+        cpu0, wall0 = _cpu_s(dash.pid), time.monotonic()
+        pub = subprocess.run(
+            [sys.executable, "-m", "benchmarks.dashboard_lag", "--publisher", endpoint, prefix]
+            + ["--seconds", str(seconds), "--rate", str(rate_hz)],
+            cwd=ROOT,
+            env=env,
+            timeout=seconds + 60,
+        )
+        cpu_share = (_cpu_s(dash.pid) - cpu0) / (time.monotonic() - wall0)
+        time.sleep(0.5)  # benchmark only: the last batch
+        stop.set()
+        for t in threads:
+            t.join(5)
+        if pub.returncode:
+            raise RuntimeError(f"publisher exited with {pub.returncode}")
     rows = np.array([s for per in samples for s in per])
     if rows.size == 0:
         raise RuntimeError("no state reached the websocket client")

@@ -11,7 +11,6 @@ frames (p50/p95), over `--seconds` with the full trail, and how many states the 
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import time
@@ -19,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.dashboard_lag import ROOT, _free_port, _wait_http
-from tiplog.bus import Bus, BusConfig
+from benchmarks.dashboard_lag import ROOT, dashboard_on_bus
 
 CHROMIUM = "/usr/bin/chromium"
 TRAIL = 24_000
@@ -29,20 +27,9 @@ TRAIL = 24_000
 def run(seconds: float) -> dict[str, float]:
     from playwright.sync_api import sync_playwright
 
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    prefix = f"render{_free_port()}/"
-    port = _free_port()
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    with Bus(BusConfig(mode="router", listen=[endpoint], connect=[], prefix=prefix)):
-        dash = subprocess.Popen(
-            [sys.executable, "-m", "services.dashboard", "--connect", endpoint, "--prefix", prefix]
-            + ["--set", f"port={port}", "--log-level", "WARNING"],
-            cwd=ROOT,
-            env=env,
-        )
+    with dashboard_on_bus("render") as (endpoint, prefix, port, _dash, env):
         pub = None
         try:
-            _wait_http(port, dash)
             pub = subprocess.Popen(
                 [sys.executable, "-m", "benchmarks.dashboard_lag", "--publisher", endpoint, prefix]
                 + ["--seconds", str(seconds + 90), "--prefill", str(TRAIL)],
@@ -60,10 +47,9 @@ def run(seconds: float) -> dict[str, float]:
                 held = page.evaluate("() => window.tiplog.est.n")
                 browser.close()
         finally:
-            for proc in (pub, dash):
-                if proc is not None and proc.poll() is None:
-                    proc.terminate()
-                    proc.wait(10)
+            if pub is not None and pub.poll() is None:
+                pub.terminate()
+                pub.wait(10)
     if len(frames) < 2:
         raise RuntimeError("the page drew no frames")
     interval, draw = frames[1:, 0], frames[:, 1]
