@@ -377,6 +377,20 @@ def _acc_step(a, dt, st, prm, qnow, qtmp, corr, R, H, e) -> None:
         st[_BIAS + k] = min(max(st[_BIAS + k] + db[k] * _DEG, -clip), clip)
 
 
+def input_rows(t_s, gyr_radps, acc_mps2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The filters' input rows as contiguous float arrays (t_s, gyr, acc); ValueError naming
+    the shapes unless they are (N,), (N, 3), (N, 3)."""
+    t = np.ascontiguousarray(t_s, dtype=float)
+    g = np.ascontiguousarray(gyr_radps, dtype=float)
+    a = np.ascontiguousarray(acc_mps2, dtype=float)
+    n = t.shape[0] if t.ndim else 0
+    if t.ndim != 1 or g.shape != (n, 3) or a.shape != (n, 3):
+        raise ValueError(
+            f"attitude input: expected t_s (N,), gyr (N, 3), acc (N, 3); got {t.shape}, {g.shape}, {a.shape}"
+        )
+    return t, g, a
+
+
 class AttitudeFilter:
     """Online and batch use of the kernel; the state carries over between calls, so feeding a
     recording in pieces gives the same result as feeding it at once."""
@@ -423,14 +437,8 @@ class AttitudeFilter:
         sensor-to-earth quaternions (w, x, y, z). NaN marks a missing value. With `with_bias`,
         also each row's gyroscope bias estimate (N, 3) [rad/s] and its covariance (N, 3, 3)
         [(deg/s)^2]."""
-        t = np.ascontiguousarray(t_s, dtype=float)
-        g = np.ascontiguousarray(gyr_radps, dtype=float)
-        a = np.ascontiguousarray(acc_mps2, dtype=float)
+        t, g, a = input_rows(t_s, gyr_radps, acc_mps2)
         n = t.shape[0]
-        if t.ndim != 1 or g.shape != (n, 3) or a.shape != (n, 3):
-            raise ValueError(
-                f"attitude input: expected t_s (N,), gyr (N, 3), acc (N, 3); got {t.shape}, {g.shape}, {a.shape}"
-            )
         out = np.empty((n, 4))
         b_out = np.empty((n if with_bias else 0, 12))
         _run(t, g, a, self._prm, self._st, out, b_out, self._rest, self._rest_k)

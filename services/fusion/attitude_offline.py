@@ -24,7 +24,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from services.fusion.attitude import AttitudeFilter, Params, _jit, _lp, _lp_coeffs, _qmat, _qmul
+from services.fusion.attitude import AttitudeFilter, Params, _jit, _lp, _lp_coeffs, _qmat, _qmul, input_rows
 
 
 @_jit
@@ -139,14 +139,8 @@ def smooth(t_s: np.ndarray, gyr_radps: np.ndarray, acc_mps2: np.ndarray, params:
     missing) -> (N, 4) sensor-to-earth quaternions (w, x, y, z). Rows before a piece's first
     complete gyroscope and accelerometer samples get that piece's first orientation."""
     p = params or Params()
-    t = np.asarray(t_s, dtype=float)
-    gyr = np.asarray(gyr_radps, dtype=float)
-    acc = np.asarray(acc_mps2, dtype=float)
+    t, gyr, acc = input_rows(t_s, gyr_radps, acc_mps2)
     n = t.shape[0]
-    if t.ndim != 1 or gyr.shape != (n, 3) or acc.shape != (n, 3):
-        raise ValueError(
-            f"attitude input: expected t_s (N,), gyr (N, 3), acc (N, 3); got {t.shape}, {gyr.shape}, {acc.shape}"
-        )
     out = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
     if n == 0:
         return out
