@@ -5,8 +5,9 @@ section per service named after it (`sensor_gateway:`, `fusion:`, ...). A servic
 `bus` and its own section. Environment variables `TIPLOG_<SECTION>__<FIELD>=value` and
 `--set section.field=value` override the file; values are parsed as YAML scalars.
 
-A bad value raises `ConfigError` whose message is one line per problem, naming the field and
-what is allowed; services turn it into exit status 2.
+A bad value raises `ConfigError` whose message is one line per problem, naming the section and
+field (`fusion.status_period_s`, `bus.connect`) and what is allowed; services turn it into exit
+status 2.
 """
 
 from __future__ import annotations
@@ -67,10 +68,15 @@ def parse_override(text: str) -> tuple[str, Any]:
     return key.strip(), value
 
 
-def format_validation_error(err: ValidationError, where: str = "") -> str:
+def format_validation_error(err: ValidationError | list[dict[str, Any]], where: str = "", section: str = "") -> str:
+    """One line per problem, `config error: LOCATION: what (got VALUE)`. `where` prefixes every
+    location; `section` names the YAML section of a service's configuration, except for the
+    shared `bus` section's fields, which are named as `bus.FIELD`."""
     lines = []
-    for e in err.errors():
+    for e in err.errors() if isinstance(err, ValidationError) else err:
         loc = ".".join(str(p) for p in e["loc"]) or "(root)"
+        if section and not (e["loc"] and e["loc"][0] == "bus"):
+            loc = f"{section}.{loc}" if loc != "(root)" else section
         if where:
             loc = f"{where}.{loc}" if loc != "(root)" else where
         msg = e["msg"]
@@ -136,6 +142,22 @@ def env_overrides(section: str, env: Mapping[str, str] | None = None) -> list[tu
     return out
 
 
+def config_data(
+    section: str,
+    path: str | Path | None = None,
+    overrides: Iterable[str | tuple[str, Any]] = (),
+    env: Mapping[str, str] | None = None,
+) -> dict[str, Any]:
+    """A section's values from file, environment and overrides (later wins), not yet validated."""
+    data = load_section(path, section)
+    pairs: list[tuple[str, Any]] = env_overrides(section, env)
+    for o in overrides:
+        pairs.append(parse_override(o) if isinstance(o, str) else o)
+    for key, value in pairs:
+        set_path(data, key, value)
+    return data
+
+
 def load_config(
     model: type[T],
     section: str,
@@ -144,16 +166,11 @@ def load_config(
     env: Mapping[str, str] | None = None,
 ) -> T:
     """Build and validate `model` from file, environment and overrides (later wins)."""
-    data = load_section(path, section)
-    pairs: list[tuple[str, Any]] = env_overrides(section, env)
-    for o in overrides:
-        pairs.append(parse_override(o) if isinstance(o, str) else o)
-    for key, value in pairs:
-        set_path(data, key, value)
+    data = config_data(section, path, overrides, env)
     try:
         return model.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(format_validation_error(e)) from None
+        raise ConfigError(format_validation_error(e, section=section)) from None
 
 
 def dump(config: BaseModel) -> str:

@@ -6,6 +6,12 @@ the recorder, whose absence loses data), doubling per quick death up to 30 s; on
 for `stable_after_s` starts again from its first delay. Times are host monotonic seconds;
 stamps on the bus are `tiplog.clock.now_ns`.
 
+Given up: a service that exits with an error status within `start_grace_s` of its start
+`give_up_after` times in a row (a bad file it names, a missing dependency) is not restarted
+again: FAILED, with the last error line it wrote, on the terminal and in the status. A child
+whose process writes its stderr to a pipe has each line passed on to ours as it comes, and its
+last lines kept for that.
+
 Nothing unrecorded: while `recording()` says no recorder records, every status with an event
 is also kept (the last `max_held`); once a recorder records again they are published once
 more, `replayed` and with their original stamps, so that its file holds them.
@@ -14,8 +20,11 @@ more, `replayed` and with their original stamps, so that its file holds them.
 from __future__ import annotations
 
 import logging
+import re
 import signal
 import subprocess
+import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -47,6 +56,42 @@ class Child:
     restart_at: float = 0.0
     last_exit_code: int = 0
     last_exit_stamp_ns: int = 0
+    failed_starts: int = 0  # exits with an error status soon after the start, in a row
+    last_error: str = ""  # the last error line of its last exit ("" when none was seen)
+    lines: deque = field(default_factory=lambda: deque(maxlen=50))  # its latest stderr lines
+    relay: threading.Thread | None = None
+
+
+_ERROR_LINE = re.compile(r"error|exception|traceback|fatal|critical|denied|not found|no such", re.IGNORECASE)
+_LOG_PREFIX = re.compile(r"^\d{4}-\d\d-\d\d [\d:,.]+ (DEBUG|INFO|WARNING|ERROR|CRITICAL) [\w.]+: ")
+MAX_ERROR_CHARS = 300
+
+
+def error_line(lines: list[str]) -> str:
+    """The line that says why a process stopped: the last that reads as an error, else the last."""
+    lines = [ln for ln in lines if ln.strip()]
+    if not lines:
+        return ""
+    chosen = next(
+        (ln for ln in reversed(lines) if _ERROR_LINE.search(ln) and not ln.startswith("Traceback")), lines[-1]
+    )
+    chosen = _LOG_PREFIX.sub("", chosen.strip())  # the message, without the log's time and level
+    return chosen if len(chosen) <= MAX_ERROR_CHARS else chosen[: MAX_ERROR_CHARS - 3] + "..."
+
+
+def _relay(stream, out, lock: threading.Lock, keep: deque) -> None:
+    """Pass a child's stderr on to `out` line by line, keeping the latest lines in `keep`."""
+    try:
+        for raw in iter(stream.readline, b""):
+            keep.append(raw.decode(errors="replace").rstrip("\r\n"))
+            with lock:
+                try:
+                    out.write(raw)
+                    out.flush()
+                except (OSError, ValueError):  # our own stderr is gone: keep reading, or the child blocks
+                    pass
+    finally:
+        stream.close()
 
 
 @dataclass
@@ -63,7 +108,11 @@ class Supervisor:
     clock: Callable[[], float] = time.monotonic
     recording: Callable[[], bool] = lambda: True  # does a recorder record what is published now
     max_held: int = 1000
+    give_up_after: int = 5  # failed starts in a row
+    start_grace_s: float = 30.0  # an error exit sooner than this after the start is a failed start
+    err_out: object = None  # where children's piped stderr goes (default: our stderr)
     _last_report: float = field(default=-1e9, init=False)
+    _err_lock: threading.Lock = field(default_factory=threading.Lock, init=False)
     held: deque = field(default_factory=deque, init=False)  # statuses no recorder has recorded
 
     def poll(self) -> None:
@@ -104,8 +153,20 @@ class Supervisor:
                 log.debug("held supervisor status not published: %s", e)
         log.info("handed %d supervisor event(s) to the recorder", n)
 
+    @property
+    def failed(self) -> list[Child]:
+        """The children given up on."""
+        return [c for c in self.children if c.state == R.SERVICE_RUN_STATE_FAILED]
+
     def _start(self, c: Child, now: float, what: str) -> None:
         c.proc = c.spawn()
+        c.lines.clear()
+        if c.proc.stderr is not None:
+            out = self.err_out if self.err_out is not None else sys.stderr.buffer
+            c.relay = threading.Thread(
+                target=_relay, args=(c.proc.stderr, out, self._err_lock, c.lines), name=f"stderr-{c.name}", daemon=True
+            )
+            c.relay.start()
         c.state = R.SERVICE_RUN_STATE_RUNNING
         c.started_at = now
         log.info("%s %s (pid %d)", c.name, what, c.proc.pid)
@@ -113,11 +174,15 @@ class Supervisor:
 
     def _exited(self, c: Child, rc: int, now: float) -> None:
         ran_s = now - c.started_at
+        if c.relay is not None:  # its last lines, the error among them, are still in the pipe
+            c.relay.join(1.0)
+            c.relay = None
+        c.last_error = error_line(list(c.lines)) if rc != 0 else ""
         c.quick_deaths = 0 if ran_s >= self.stable_after_s else c.quick_deaths + 1
+        # Killed by a signal is not a failure of its own: the OOM killer, a user, a test.
+        c.failed_starts = c.failed_starts + 1 if rc > 0 and ran_s < self.start_grace_s else 0
         first = self.first_delay_s if c.first_delay_s is None else c.first_delay_s
         delay = min(self.max_delay_s, first * 2 ** max(0, c.quick_deaths - 1))
-        c.state = R.SERVICE_RUN_STATE_RESTARTING
-        c.restart_at = now + delay
         c.last_exit_code = rc
         c.last_exit_stamp_ns = now_ns()
         c.proc = None
@@ -126,8 +191,17 @@ class Supervisor:
             if rc < 0 and -rc in signal.Signals._value2member_map_
             else f"exited with {rc}"
         )
+        said = f": {c.last_error}" if c.last_error else ""
+        if c.failed_starts >= self.give_up_after:
+            c.state = R.SERVICE_RUN_STATE_FAILED
+            event = f"{c.name} failed at start {c.failed_starts} times in a row ({how}); not restarted{said}"
+            log.error("%s", event)
+            self.report(event)
+            return
+        c.state = R.SERVICE_RUN_STATE_RESTARTING
+        c.restart_at = now + delay
         shown = f"{delay:.2f}" if delay < 0.1 else f"{delay:.1f}"  # the recorder's 0.05 s is not "0.1"
-        event = f"{c.name} {how} after {ran_s:.1f} s; restarting in {shown} s"
+        event = f"{c.name} {how} after {ran_s:.1f} s; restarting in {shown} s{said}"
         log.warning("%s", event)
         self.report(event)
 
@@ -146,6 +220,7 @@ class Supervisor:
                     last_exit_stamp_ns=c.last_exit_stamp_ns,
                     restart_in_s=max(0.0, c.restart_at - now) if c.state == R.SERVICE_RUN_STATE_RESTARTING else 0.0,
                     uptime_s=now - c.started_at if c.state == R.SERVICE_RUN_STATE_RUNNING else 0.0,
+                    last_error=c.last_error,
                 )
             )
         return st
@@ -178,8 +253,12 @@ class Supervisor:
     @staticmethod
     def _mark_stopped(children: list[Child]) -> None:
         for c in children:
-            c.state = R.SERVICE_RUN_STATE_STOPPED
+            if c.state != R.SERVICE_RUN_STATE_FAILED:  # given up on stays said
+                c.state = R.SERVICE_RUN_STATE_STOPPED
             c.proc = None
+            if c.relay is not None:
+                c.relay.join(1.0)
+                c.relay = None
 
     @staticmethod
     def _stop_group(children: list[Child], grace_s: float) -> None:

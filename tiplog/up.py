@@ -2,15 +2,15 @@
 
 This process holds the Zenoh session in router mode that every service connects to (no
 router binary needed), starts each service as its own process under `tiplog.supervisor`
-(restarted with back-off when it dies, every change reported on `system/supervisor`), prints
-where to look, and stops them all on Ctrl-C, SIGTERM or after `--duration`.
+(restarted with back-off when it dies, given up on when it keeps failing at start, every change
+reported on `system/supervisor`), prints where to look, and stops them all on Ctrl-C, SIGTERM or
+after `--duration`; it exits 1 then when it gave up on a service.
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
-import importlib
 import logging
 import os
 import shutil
@@ -31,13 +31,14 @@ from tiplog.config import load_section
 from tiplog.holders import device_reader, pty_emulator, tcp_listener
 from tiplog.service import SUPERVISED_ENV, SUPERVISOR_PID_ENV
 from tiplog.supervisor import Child, Supervisor
+from tiplog.up_config import SERVICES, check_system_config, config_model
 from tiplog.userio import UserError, input_file
 from tiplog.v1 import recorder_pb2, system_pb2
 
 log = logging.getLogger("tiplog.up")
 R = system_pb2.ServiceRunState
 
-DEFAULT_SERVICES = ["bench", "sensor_gateway", "vision", "fusion", "recorder", "dashboard", "igtlink"]
+DEFAULT_SERVICES = list(SERVICES)
 
 
 def register(p: argparse.ArgumentParser) -> None:
@@ -66,29 +67,15 @@ STOP_LAST = ("recorder",)  # records what the others publish as they stop
 FIRST_DELAY_S = {"recorder": 0.05}
 
 
-def _config_model(name: str):
-    """A service's configuration model (None when it cannot be imported here)."""
-    from tiplog.config import ServiceConfig
-
-    try:
-        mod = importlib.import_module(f"services.{name}.app")
-    except Exception:  # a service that fails to import says so itself when started
-        return None
-    for v in vars(mod).values():
-        if isinstance(v, type) and issubclass(v, ServiceConfig) and v is not ServiceConfig:
-            return v
-    return None
-
-
 def _config_fields(name: str) -> set[str]:
     """Fields of a service's configuration model (empty when it cannot be imported here)."""
-    model = _config_model(name)
+    model = config_model(name)
     return set(model.model_fields) if model is not None else set()
 
 
 def _config_default(name: str, field: str) -> object:
     """A service configuration field's default (None when unknown here)."""
-    model = _config_model(name)
+    model = config_model(name)
     return model.model_fields[field].default if model is not None and field in model.model_fields else None
 
 
@@ -162,7 +149,10 @@ def _spawn(name: str, endpoint: str, config: str | None, sets: list[str] = ()) -
         cmd += ["--config", config]
     for s in sets:
         cmd += ["--set", s]
-    return subprocess.Popen(cmd, env={**os.environ, SUPERVISED_ENV: "1", SUPERVISOR_PID_ENV: str(os.getpid())})
+    # stderr through the supervisor, which passes every line on and keeps the last error line.
+    return subprocess.Popen(
+        cmd, env={**os.environ, SUPERVISED_ENV: "1", SUPERVISOR_PID_ENV: str(os.getpid())}, stderr=subprocess.PIPE
+    )
 
 
 class RecorderWatch:
@@ -213,16 +203,20 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--services: unknown service(s) {', '.join(unknown)}; known: {', '.join(DEFAULT_SERVICES)}")
     if args.duration is not None and not args.duration > 0:
         raise UserError(f"--duration must be positive (got {args.duration})")
-    if args.config:
-        load_section(args.config, "up")  # a missing file or a YAML error stops here, named
-    held = held_resources(names, args.listen, args.config)
-    if held:
-        raise UserError(
-            "cannot start: " + "; ".join(held) + " (another `tiplog up`, or what is left of one): stop it, or "
-            "give other --listen / dashboard.port / bench.device_link"
-        )
     run_dir = Path(tempfile.mkdtemp(prefix="tiplog-up-"))
-    sets, calibration = calibration_sets(names, args.calibration, run_dir)
+    try:
+        sets, calibration = calibration_sets(names, args.calibration, run_dir)
+        # Every section, before anything starts: a bad value is one line naming section and field.
+        check_system_config(args.config, names, sets, pending=calibration if not args.calibration else None)
+        held = held_resources(names, args.listen, args.config)
+        if held:
+            raise UserError(
+                "cannot start: " + "; ".join(held) + " (another `tiplog up`, or what is left of one): stop it, or "
+                "give other --listen / dashboard.port / bench.device_link"
+            )
+    except BaseException:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        raise
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: threading.Thread(target=stop.set, daemon=True).start())
@@ -272,4 +266,7 @@ def run(args: argparse.Namespace) -> int:
         log.info("stopping; alive: %s", ", ".join(sorted(bus.alive(0.3))) or "none")
         sup.stop()
     shutil.rmtree(run_dir, ignore_errors=True)
-    return 0
+    for c in sup.failed:
+        why = f": {c.last_error}" if c.last_error else ""
+        print(f"tiplog up: {c.name} was given up on after {c.failed_starts} failed starts{why}", file=sys.stderr)
+    return 1 if sup.failed else 0

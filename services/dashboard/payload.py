@@ -84,6 +84,8 @@ def status(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
             entry = health.setdefault(run.service, {"state": "down", "token": False})
             entry["run_state"] = system_pb2.ServiceRunState.Name(run.state).removeprefix("SERVICE_RUN_STATE_").lower()
             entry["restarts"] = run.restarts
+            if run.last_error:
+                entry["last_error"] = run.last_error
     return {
         "t_ms": round((t - t0_ns) / 1e6, 3),
         "health": health,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -27,10 +28,12 @@ from services.vision.labeler import (
     label_mask,
     lines_from_blob,
 )
-from services.vision.network import Segmenter
 from tiplog import vision_geometry as vg
 from tiplog.camera_model import CameraModel
 from tiplog.v1 import vision_pb2
+
+if TYPE_CHECKING:  # torch is imported only where a network runs (`tiplog up` reads the config model)
+    from services.vision.network import Segmenter
 
 
 class PipelineParams(BaseModel):

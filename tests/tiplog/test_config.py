@@ -31,7 +31,7 @@ def test_out_of_range_names_field_and_range():
 
 
 def test_unknown_field_and_bad_enum():
-    with pytest.raises(ConfigError, match=r"config error: rate: unknown field"):
+    with pytest.raises(ConfigError, match=r"config error: demo\.rate: unknown field"):
         load_config(DemoConfig, "demo", None, ["rate=3"], env={})
     with pytest.raises(ConfigError, match=r"bus\.mode: .*'peer'.*'client'.*'router'"):
         load_config(DemoConfig, "demo", None, ["bus.mode=mesh"], env={})

@@ -171,3 +171,48 @@ def test_events_no_recorder_recorded_are_held_and_handed_over_with_their_stamps(
     sup.poll()
     assert not sup.held  # while recording nothing is held
     sup.stop()
+
+
+def test_a_service_failing_at_start_is_given_up_on_with_its_error_line():
+    import io
+
+    def failing() -> subprocess.Popen:
+        code = "import sys; print('loading'); print('config error: x.y: bad', file=sys.stderr); sys.exit(2)"
+        return subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE)
+
+    clock, published, relayed = Clock(), [], io.BytesIO()
+    c = Child("dashboard", failing)
+    sup = Supervisor([c], publish=published.append, clock=clock, give_up_after=3, err_out=relayed)
+    for _ in range(3):
+        sup.poll()  # starts (or restarts) it
+        c.proc.wait(30)
+        clock.t += 0.1
+        sup.poll()  # notices the exit
+        clock.t = max(clock.t, c.restart_at)
+    assert c.state == R.SERVICE_RUN_STATE_FAILED and sup.failed == [c]
+    sup.poll()
+    assert c.state == R.SERVICE_RUN_STATE_FAILED and c.proc is None  # not restarted
+    events = [s.event for s in published if s.event]
+    assert (
+        events[-1]
+        == "dashboard failed at start 3 times in a row (exited with 2); not restarted: config error: x.y: bad"
+    )
+    assert "dashboard exited with 2 after 0.1 s; restarting in 0.5 s: config error: x.y: bad" in events
+    run = published[-1].services[0]
+    assert run.state == R.SERVICE_RUN_STATE_FAILED and run.last_error == "config error: x.y: bad"
+    assert relayed.getvalue().decode().splitlines() == ["config error: x.y: bad"] * 3  # passed on as it came
+    sup.stop()
+    assert c.state == R.SERVICE_RUN_STATE_FAILED
+
+
+def test_a_service_failing_later_than_its_start_is_not_given_up_on():
+    clock = Clock()
+    c = Child("vision", exiting(1))
+    sup = Supervisor([c], clock=clock, give_up_after=2, start_grace_s=5.0)
+    for _ in range(3):
+        sup.poll()
+        c.proc.wait(30)
+        clock.t += 6.0  # ran longer than the start's grace
+        sup.poll()
+        clock.t = max(clock.t, c.restart_at)
+    assert c.state == R.SERVICE_RUN_STATE_RESTARTING and c.failed_starts == 0

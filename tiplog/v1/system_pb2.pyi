@@ -15,14 +15,16 @@ class ServiceRunState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     SERVICE_RUN_STATE_RUNNING: _ClassVar[ServiceRunState]
     SERVICE_RUN_STATE_RESTARTING: _ClassVar[ServiceRunState]
     SERVICE_RUN_STATE_STOPPED: _ClassVar[ServiceRunState]
+    SERVICE_RUN_STATE_FAILED: _ClassVar[ServiceRunState]
 SERVICE_RUN_STATE_UNSPECIFIED: ServiceRunState
 SERVICE_RUN_STATE_WAITING: ServiceRunState
 SERVICE_RUN_STATE_RUNNING: ServiceRunState
 SERVICE_RUN_STATE_RESTARTING: ServiceRunState
 SERVICE_RUN_STATE_STOPPED: ServiceRunState
+SERVICE_RUN_STATE_FAILED: ServiceRunState
 
 class ServiceRun(_message.Message):
-    __slots__ = ("service", "state", "pid", "restarts", "last_exit_code", "last_exit_stamp_ns", "restart_in_s", "uptime_s")
+    __slots__ = ("service", "state", "pid", "restarts", "last_exit_code", "last_exit_stamp_ns", "restart_in_s", "uptime_s", "last_error")
     SERVICE_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
     PID_FIELD_NUMBER: _ClassVar[int]
@@ -31,6 +33,7 @@ class ServiceRun(_message.Message):
     LAST_EXIT_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     RESTART_IN_S_FIELD_NUMBER: _ClassVar[int]
     UPTIME_S_FIELD_NUMBER: _ClassVar[int]
+    LAST_ERROR_FIELD_NUMBER: _ClassVar[int]
     service: str
     state: ServiceRunState
     pid: int
@@ -39,7 +42,8 @@ class ServiceRun(_message.Message):
     last_exit_stamp_ns: int
     restart_in_s: float
     uptime_s: float
-    def __init__(self, service: _Optional[str] = ..., state: _Optional[_Union[ServiceRunState, str]] = ..., pid: _Optional[int] = ..., restarts: _Optional[int] = ..., last_exit_code: _Optional[int] = ..., last_exit_stamp_ns: _Optional[int] = ..., restart_in_s: _Optional[float] = ..., uptime_s: _Optional[float] = ...) -> None: ...
+    last_error: str
+    def __init__(self, service: _Optional[str] = ..., state: _Optional[_Union[ServiceRunState, str]] = ..., pid: _Optional[int] = ..., restarts: _Optional[int] = ..., last_exit_code: _Optional[int] = ..., last_exit_stamp_ns: _Optional[int] = ..., restart_in_s: _Optional[float] = ..., uptime_s: _Optional[float] = ..., last_error: _Optional[str] = ...) -> None: ...
 
 class SupervisorStatus(_message.Message):
     __slots__ = ("header", "services", "router_endpoint", "event", "replayed")

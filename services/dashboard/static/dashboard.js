@@ -122,7 +122,8 @@
     const h = st.health || {};
     fillTable($("health").tBodies[0], Object.entries(h).map(([name, v]) =>
       [[name, v.state, v.last_data_age_s === null || v.last_data_age_s === undefined ? "\u2013" : fmt(v.last_data_age_s, 2),
-        v.run_state || "\u2013", v.restarts === undefined ? "\u2013" : String(v.restarts)], `state-${v.state}`]));
+        v.run_state === "failed" && v.last_error ? `failed: ${v.last_error}` : v.run_state || "\u2013",
+        v.restarts === undefined ? "\u2013" : String(v.restarts)], `state-${v.state}`]));
     text("supervisor-event", st.supervisor_event ? `tiplog up: ${st.supervisor_event}` : "");
     const streams = st.streams || {};
     fillTable($("streams").tBodies[0], Object.entries(streams).map(([topic, v]) =>
