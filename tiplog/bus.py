@@ -46,6 +46,15 @@ def no_router_line(endpoints: list[str]) -> str:
     )
 
 
+def alone_line(endpoint: str) -> str:
+    """The one line a standalone process logs when no router answers and it listens there itself."""
+    return (
+        f"bus: no router answers at {endpoint}; listening there alone, so only tiplog processes started "
+        f"alone on this machine (`tiplog record run`) reach this one; for the system start a router with "
+        f"`tiplog up` or `python -m tiplog.router --listen {endpoint}`"
+    )
+
+
 def _loopback_tcp(endpoints: list[str]) -> str | None:
     for e in endpoints:
         if e.startswith(("tcp/127.", "tcp/localhost:", "tcp/[::1]:")):
@@ -245,11 +254,7 @@ class Bus:
                 pass
             else:
                 self.holds_endpoint = ep
-                log.debug(
-                    "bus: no router at %s: listening there, so tiplog processes on this machine find this one "
-                    "(`tiplog up` runs the whole system)",
-                    ep,
-                )
+                log.warning("%s", alone_line(ep))
                 return session
         t0 = time.monotonic()
         deadline = None if cfg.open_timeout_s is None else t0 + cfg.open_timeout_s

@@ -92,3 +92,55 @@ def test_standalone_processes_find_each_other_without_a_router(endpoint):
 def test_without_standalone_a_peer_never_listens_on_the_router_endpoint(endpoint):
     with Bus(BusConfig(connect=[endpoint])) as b:
         assert b.holds_endpoint is None
+
+
+def test_a_standalone_process_with_no_router_says_so_naming_the_endpoint(endpoint, bus_log):
+    lines = bus_log("no router answers")
+    with Bus(BusConfig(connect=[endpoint], standalone=True)) as b:
+        assert b.holds_endpoint == endpoint
+        (warning,) = [r for r in lines.records if "no router answers" in r.getMessage()]
+        text = warning.getMessage()
+        assert warning.levelno == logging.WARNING and "\n" not in text
+        assert endpoint in text and "tiplog up" in text and f"python -m tiplog.router --listen {endpoint}" in text
+
+
+def test_tiplog_replay_with_no_router_says_so_before_it_replays(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT, free_port
+    from tiplog.mcap_io import McapWriter
+
+    path = tmp_path / "two.mcap"
+    with McapWriter(path) as w:
+        for k, t in enumerate((0, 10 * 10**9)):
+            m = device_pb2.Gyro()
+            m.header.stamp_ns, m.header.seq = t, k
+            w.write("device/gyro", m, t)
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tiplog.cli", "replay", str(path), "--wait", "1", "-e", nobody],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if "no subscriber" in line:
+                break
+        notice = [ln for ln in seen if "no router answers" in ln]
+        assert len(notice) == 1 and seen.index(notice[0]) < len(seen) - 1, seen
+        assert (
+            nobody in notice[0]
+            and "tiplog up" in notice[0]
+            and f"python -m tiplog.router --listen {nobody}" in notice[0]
+        )
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=30)
