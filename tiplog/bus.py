@@ -47,7 +47,8 @@ def no_router_line(endpoints: list[str]) -> str:
 
 
 def alone_line(endpoint: str) -> str:
-    """The one line a standalone process logs when no router answers and it listens there itself."""
+    """The one line a standalone process logs when no router answers, it listens there itself and
+    nothing has joined it."""
     return (
         f"bus: no router answers at {endpoint}; listening there alone, so only tiplog processes started "
         f"alone on this machine (`tiplog record run`) reach this one; for the system start a router with "
@@ -254,7 +255,14 @@ class Bus:
                 pass
             else:
                 self.holds_endpoint = ep
-                log.warning("%s", alone_line(ep))
+                log.debug(
+                    "bus: no router at %s: listening there, so tiplog processes on this machine find this one "
+                    "(`tiplog up` runs the whole system)",
+                    ep,
+                )
+                threading.Thread(
+                    target=self._watch_alone, args=(session, ep), name="bus-alone-watch", daemon=True
+                ).start()
                 return session
         t0 = time.monotonic()
         deadline = None if cfg.open_timeout_s is None else t0 + cfg.open_timeout_s
@@ -285,6 +293,19 @@ class Bus:
                     target=self._watch_router, args=(session,), name="bus-router-watch", daemon=True
                 ).start()
             return session
+
+    def _watch_alone(self, session: zenoh.Session, endpoint: str) -> None:
+        """A standalone process holding the endpoint: when no other process has joined it within
+        NOTICE_AFTER_S, say in one line that no router answers (two tiplog processes started
+        alone in two terminals meet at once and say nothing)."""
+        if self._watch_stop.wait(NOTICE_AFTER_S):
+            return
+        try:
+            joined = bool(list(session.info.peers_zid()) or list(session.info.routers_zid()))
+        except Exception:  # the session closed under us
+            return
+        if not joined:
+            log.warning("%s", alone_line(endpoint))
 
     def _watch_router(self, session: zenoh.Session) -> None:
         """A peer opens at once whether or not its router is there (zenoh keeps trying in the

@@ -98,6 +98,7 @@ def test_a_standalone_process_with_no_router_says_so_naming_the_endpoint(endpoin
     lines = bus_log("no router answers")
     with Bus(BusConfig(connect=[endpoint], standalone=True)) as b:
         assert b.holds_endpoint == endpoint
+        assert lines.seen["no router answers"].wait(10)
         (warning,) = [r for r in lines.records if "no router answers" in r.getMessage()]
         text = warning.getMessage()
         assert warning.levelno == logging.WARNING and "\n" not in text
@@ -121,7 +122,7 @@ def test_tiplog_replay_with_no_router_says_so_before_it_replays(tmp_path):
             w.write("device/gyro", m, t)
     nobody = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tiplog.cli", "replay", str(path), "--wait", "1", "-e", nobody],
+        [sys.executable, "-m", "tiplog.cli", "replay", str(path), "-e", nobody],
         cwd=ROOT,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
         stdout=subprocess.DEVNULL,
