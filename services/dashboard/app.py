@@ -90,7 +90,14 @@ def start(bus: Bus, config: DashboardConfig, tokens: Tokens | None = None) -> Ru
     app = create_app(feed, config, tokens, RecorderClient(bus, config.recorder_timeout_s))
     server = uvicorn.Server(
         uvicorn.Config(
-            app, host=config.host, port=config.port, log_level="warning", access_log=False, lifespan="on", **tls
+            app,
+            host=config.host,
+            port=config.port,
+            log_level="warning",
+            access_log=False,
+            lifespan="on",
+            ws_per_message_deflate=config.ws_per_message_deflate,
+            **tls,
         )
     )
     thread = threading.Thread(target=server.run, name="dashboard-http", daemon=True)

@@ -40,6 +40,14 @@ class DashboardConfig(ServiceConfig):
     # A websocket client that has not taken one message within this time is dropped (counted):
     # what waits for it is bounded by this time at the push rate.
     ws_send_timeout_s: float = Field(5.0, gt=0.0, le=120.0)
+    # Websocket messages a second to all clients together: each client gets at most this over
+    # the number of clients (with 50 clients, 40 a second, each carrying every row since the
+    # last); below that rate every state leaves alone as it arrives.
+    ws_messages_per_s: float = Field(2_000.0, ge=10.0, le=1_000_000.0)
+    # permessage-deflate on the websocket: compressed per client and per message on the event
+    # loop that also answers the API, a cost that grows with the clients times the state rate;
+    # off, each client takes about 1 kB per state (200 kB/s at 200 Hz).
+    ws_per_message_deflate: bool = False
     # How long a recorder command waits for the recorder's reply.
     recorder_timeout_s: float = Field(3.0, gt=0.0, le=60.0)
     # Calibration file (tiplog.calibration YAML) for drawing vision observations in the base frame.

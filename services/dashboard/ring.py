@@ -55,14 +55,20 @@ class Ring:
             self._total += 1
             return self._total - 1
 
-    def read(self, cursor: int, max_rows: int) -> Slice:
-        """Up to `max_rows` rows from absolute index `cursor` on (oldest first)."""
+    def span(self, cursor: int, max_rows: int) -> tuple[int, int, int]:
+        """(start, end, skipped) of what `read(cursor, max_rows)` would return, copying nothing:
+        readers that share a cursor can share one read of it."""
+        total = self._total  # one int read: atomic, and a row counted in it is already written
+        oldest = max(0, total - self.capacity)
+        start = max(cursor, oldest)
+        return start, min(total, start + max_rows), start - cursor
+
+    def read(self, cursor: int, max_rows: int, end: int | None = None) -> Slice:
+        """Up to `max_rows` rows from absolute index `cursor` on (oldest first), or up to `end`
+        when given (a span's end, so that the rows match it)."""
         with self._lock:
-            total = self._total
-            oldest = max(0, total - self.capacity)
-            start = max(cursor, oldest)
-            skipped = start - cursor if cursor < oldest else 0
-            end = min(total, start + max_rows)
+            start, stop, skipped = self.span(cursor, max_rows)
+            end = stop if end is None else max(start, min(end, stop))
             idx = np.arange(start, end) % self.capacity
             return Slice(start, end, self._stamps[idx].copy(), self._rows[idx].copy(), skipped)
 

@@ -17,6 +17,8 @@ from urllib.parse import parse_qs
 from fastapi import Depends, FastAPI, HTTPException, Request, WebSocket
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse, Response
 from fastapi.security import APIKeyCookie, HTTPAuthorizationCredentials, HTTPBearer
+from starlette.requests import HTTPConnection
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.dashboard import limits, payload
 from services.dashboard.auth import COOKIE, Role, Tokens, bearer
@@ -44,6 +46,47 @@ LOGIN_PAGE = """<!doctype html>
 def same_origin(origin: str, conn: Any) -> bool:
     """True when an Origin header names the host the request was sent to."""
     return origin.split("://", 1)[-1] == conn.headers.get("host", "")
+
+
+SECURITY_HEADERS = [
+    (b"content-security-policy", CSP.encode()),
+    (b"x-content-type-options", b"nosniff"),
+    # same-origin, not no-referrer: with no-referrer Chromium sends "Origin: null" on the
+    # page's own form posts, which the cross-site check would refuse.
+    (b"referrer-policy", b"same-origin"),
+    (b"cache-control", b"no-store"),
+]
+
+
+class SecurityHeaders:
+    """Refuses cross-site writes and adds the security headers to every HTTP response. Plain
+    ASGI, not `@app.middleware("http")`: that one runs each request through extra tasks and
+    streams, hops on an event loop that also serves every websocket client."""
+
+    def __init__(self, app: ASGIApp):
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                names = {k for k, _ in SECURITY_HEADERS}
+                message["headers"] = [h for h in message.get("headers", []) if h[0].lower() not in names]
+                message["headers"] += SECURITY_HEADERS
+            await send(message)
+
+        conn = HTTPConnection(scope)
+        origin_hdr = conn.headers.get("origin")
+        if scope["method"] not in ("GET", "HEAD", "OPTIONS") and origin_hdr and not same_origin(origin_hdr, conn):
+            # Another site's page posting with the operator's cookie (or to a token-less loopback
+            # dashboard): refused before any route runs.
+            refusal = Response("cross-site request refused", status_code=403, media_type="text/plain")
+            await refusal(scope, receive, send_with_headers)
+            return
+        await self.app(scope, receive, send_with_headers)
 
 
 _bearer = HTTPBearer(auto_error=False, description="viewer or operator token")
@@ -99,22 +142,7 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
 
     Viewer = Annotated[Role, Depends(require(Role.VIEWER))]
 
-    @app.middleware("http")
-    async def security_headers(request: Request, call_next: Any) -> Response:
-        origin_hdr = request.headers.get("origin")
-        if request.method not in ("GET", "HEAD", "OPTIONS") and origin_hdr and not same_origin(origin_hdr, request):
-            # Another site's page posting with the operator's cookie (or to a token-less loopback
-            # dashboard): refused before any route runs.
-            response: Response = Response("cross-site request refused", status_code=403, media_type="text/plain")
-        else:
-            response = await call_next(request)
-        response.headers["Content-Security-Policy"] = CSP
-        response.headers["X-Content-Type-Options"] = "nosniff"
-        # same-origin, not no-referrer: with no-referrer Chromium sends "Origin: null" on the
-        # page's own form posts, which the cross-site check would refuse.
-        response.headers["Referrer-Policy"] = "same-origin"
-        response.headers["Cache-Control"] = "no-store"
-        return response
+    app.add_middleware(SecurityHeaders)
 
     @app.post("/logout", include_in_schema=False)
     def logout() -> Response:

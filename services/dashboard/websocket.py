@@ -5,7 +5,11 @@ Each client's sender reads from its own cursors in the rings and sends one messa
 with every row that arrived since (none dropped from the trail while the client keeps up).
 While a send waits on a slow client, rows simply accumulate in the ring: the next message
 carries them all, up to `max_batch_rows`; a client more than a ring behind skips ahead and is
-told how many rows it missed. Nothing queues per client. A client that does not take a message
+told how many rows it missed. Nothing queues per client. All clients together are sent at most
+`ws_messages_per_s` messages a second: with a few clients each state leaves alone as it
+arrives; with many, each client's messages are paced (every sender waking on the same tick, so
+their rows are read and encoded once) and carry several rows, so that the event loop, which
+also answers the API, is not spent on one socket write per client per state. A client that does not take a message
 within `ws_send_timeout_s` (it stopped reading, or reads slower than the push rate) is dropped
 and counted (`feed.ws_dropped`): what waits for it in the socket buffers is bounded.
 
@@ -22,6 +26,7 @@ import contextlib
 import json
 import logging
 import threading
+import time
 from typing import Any
 
 from starlette.websockets import WebSocket, WebSocketDisconnect
@@ -29,6 +34,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from services.dashboard import payload
 from services.dashboard.config import DashboardConfig
 from services.dashboard.feed import BusFeed
+from services.dashboard.ring import Ring
 from tiplog.clock import now_ns
 
 log = logging.getLogger("tiplog.dashboard")
@@ -96,14 +102,21 @@ class BatchCache:
         self._current: tuple[int, str] | None = None
         self._status: tuple[int, str] | None = None
 
-    def rows(self, key: str, sl: Any, t0_ns: int) -> str:
-        k = (key, sl.start, sl.end)
+    def rows(self, key: str, ring: Ring, cursor: int, max_rows: int, t0_ns: int) -> tuple[str, int, int]:
+        """The rows of `ring` from `cursor` as JSON text, with the new cursor and how many rows
+        were skipped. Only the first reader of a span copies and encodes it."""
+        start, end, skipped = ring.span(cursor, max_rows)
+        k = (key, start, end)
         text = self._rows.get(k)
         if text is None:
+            sl = ring.read(start, max_rows, end)
+            skipped += sl.skipped  # overwritten between the span and the read: rare
+            k = (key, sl.start, sl.end)
+            end = sl.end
             if len(self._rows) >= self.max_slices:
                 self._rows.clear()
             text = self._rows[k] = _dumps(payload.rows(sl, t0_ns))
-        return text
+        return text, end, skipped
 
     def current(self, feed: BusFeed, t0_ns: int) -> str:
         total = feed.state.total
@@ -160,7 +173,9 @@ class SlowClient(Exception):
 async def send_bounded(websocket: WebSocket, text: str, timeout_s: float) -> None:
     """Send `text`, or raise SlowClient when the client has not taken it within `timeout_s`."""
     try:
-        await asyncio.wait_for(websocket.send_text(text), timeout_s)
+        # asyncio.timeout, not wait_for: no task per message (wait_for makes one on 3.11)
+        async with asyncio.timeout(timeout_s):
+            await websocket.send_text(text)
     except TimeoutError:
         raise SlowClient(f"took no message for {timeout_s:g} s") from None
 
@@ -189,17 +204,18 @@ async def _send_loop(websocket: WebSocket, feed: BusFeed, wake: Wake, config: Da
         behind = any(cursors[k] < r.total for k, r in rings.items())
         if not behind and now_ns() < next_status:
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(event.wait(), timeout=max(0.0, (next_status - now_ns()) / 1e9))
+                async with asyncio.timeout(max(0.0, (next_status - now_ns()) / 1e9)):
+                    await event.wait()
         cache: BatchCache = feed.batch_cache
         parts = ['{"type":"batch"']
         skipped = 0
         new_rows = {}
         for key, ring in rings.items():
-            sl = ring.read(cursors[key], config.max_batch_rows)
-            cursors[key] = sl.end
-            skipped += sl.skipped
-            new_rows[key] = sl.end > sl.start
-            parts.append(f',"{key}":{cache.rows(key, sl, t0_ns)}')
+            text, end, n_skipped = cache.rows(key, ring, cursors[key], config.max_batch_rows, t0_ns)
+            new_rows[key] = end > cursors[key] + n_skipped
+            cursors[key] = end
+            skipped += n_skipped
+            parts.append(f',"{key}":{text}')
         parts.append(f',"skipped":{skipped}')
         status_due = now_ns() >= next_status
         if not (new_rows["state"] or status_due or new_rows["reference"] or new_rows["vision"]):
@@ -215,3 +231,12 @@ async def _send_loop(websocket: WebSocket, feed: BusFeed, wake: Wake, config: Da
             next_status = now_ns() + period_ns
         parts.append(f',"sent_ns":{now_ns()}}}')
         await send_bounded(websocket, "".join(parts), config.ws_send_timeout_s)
+        await asyncio.sleep(pace_s(feed.ws_clients, config.ws_messages_per_s, time.monotonic()))
+
+
+def pace_s(clients: int, messages_per_s: float, now_s: float) -> float:
+    """How long a sender waits after a message: until the next tick of period clients /
+    `messages_per_s` on the monotonic clock (the event loop's), so that every client sends at
+    most that often and, all waking on the same tick, reads the same rows (encoded once)."""
+    period_s = max(clients, 1) / messages_per_s
+    return period_s - now_s % period_s

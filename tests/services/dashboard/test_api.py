@@ -190,6 +190,21 @@ def test_cross_site_posts_are_refused_and_sign_out_clears_the_cookie(served):
         assert out.status_code == 303 and 'tiplog_token=""' in out.headers["set-cookie"]
 
 
+def test_every_answer_carries_the_security_headers_once(served):
+    with served.client(VIEWER) as c:
+        answers = [
+            c.get("/api/state"),
+            c.get("/static/missing.js"),  # 404
+            served.client().get("/api/state"),  # 401
+            c.post("/api/recorder/mark", json={"label": "x"}, headers={"Origin": "http://evil.example"}),  # 403
+        ]
+    assert [r.status_code for r in answers] == [200, 404, 401, 403]
+    for r in answers:
+        for name in ("content-security-policy", "x-content-type-options", "referrer-policy", "cache-control"):
+            assert len(r.headers.get_list(name)) == 1, (r.status_code, name)
+        assert r.headers["cache-control"] == "no-store" and "default-src 'none'" in r.headers["content-security-policy"]
+
+
 def test_pages_referrer_policy_lets_the_browser_send_its_origin(served):
     # With no-referrer, Chromium sends "Origin: null" on the page's own form posts (sign-in),
     # which the cross-site check refuses.

@@ -14,7 +14,7 @@ from services.dashboard.config import DashboardConfig
 from services.dashboard.feed import STATE_COLUMNS
 from services.dashboard.ring import Ring
 from services.dashboard.streams import Envelope
-from services.dashboard.websocket import BatchCache, Wake, serve_client
+from services.dashboard.websocket import BatchCache, Wake, pace_s, serve_client
 
 
 def test_ring_cursor_and_skip():
@@ -120,3 +120,78 @@ def test_slow_client_gets_bounded_batches_then_the_newest(monkeypatch):
     # received the rest in order with nothing repeated, ending on the newest state.
     assert skipped == 700 and got == list(range(700, 1000))
     assert batches[-1]["current"] == {"newest": 1000}
+
+
+def test_readers_at_one_cursor_share_one_encoding(monkeypatch):
+    import services.dashboard.websocket as wsmod
+
+    encoded = []
+    real_rows = wsmod.payload.rows
+    monkeypatch.setattr(wsmod.payload, "rows", lambda sl, t0: encoded.append(sl.start) or real_rows(sl, t0))
+    r = Ring(capacity=10, width=len(STATE_COLUMNS))
+    for k in range(25):
+        r.append(1000 + k, np.full(len(STATE_COLUMNS), float(k)))
+    assert r.span(0, 100) == (15, 25, 15) and r.span(20, 3) == (20, 23, 0) and r.span(25, 10) == (25, 25, 0)
+    cache = BatchCache()
+    first = cache.rows("state", r, 0, 100, 0)
+    assert [cache.rows("state", r, 0, 100, 0) for _ in range(49)] == [first] * 49
+    assert first[1:] == (25, 15) and encoded == [15]  # 50 readers, one copy and encoding
+    assert [row[1] for row in json.loads(first[0])] == list(range(15, 25))
+    assert cache.rows("state", r, 20, 3, 0)[1:] == (23, 0) and encoded == [15, 20]
+
+
+def test_pace_ticks_are_shared_by_every_client():
+    # 50 clients at 2000 messages/s: one message per client every 25 ms, on the same ticks.
+    assert pace_s(50, 2000.0, 10.010) == pytest.approx(0.015)
+    assert pace_s(50, 2000.0, 10.0249) == pytest.approx(0.0001)
+    assert pace_s(1, 2000.0, 3.0002) == pytest.approx(0.0003)
+    assert pace_s(0, 2000.0, 3.0002) == pytest.approx(0.0003)  # the count read as a client leaves
+
+
+class _ReadingSocket:
+    """A websocket client that takes every message at once."""
+
+    def __init__(self, n_states: int):
+        self.sent: list[dict] = []
+        self.n_states = n_states
+        self.all_seen = asyncio.Event()
+        self.closed = asyncio.Event()
+
+    async def send_text(self, text: str) -> None:
+        self.sent.append(json.loads(text))
+        if sum(len(m.get("state", [])) for m in self.sent) >= self.n_states:
+            self.all_seen.set()
+
+    async def receive(self) -> dict:
+        await self.closed.wait()
+        return {"type": "websocket.disconnect"}
+
+
+def test_paced_clients_get_every_state_in_fewer_messages(monkeypatch):
+    import services.dashboard.websocket as wsmod
+
+    monkeypatch.setattr(wsmod.payload, "state_now", lambda feed, t0: {"newest": feed.state.total})
+    monkeypatch.setattr(wsmod.payload, "status", lambda feed, t0: {})
+    # 3 clients at 30 messages/s together: each sends at most every 0.1 s.
+    cfg = DashboardConfig(ws_messages_per_s=30.0, trail_samples=1000, push_status_period_s=10.0)
+    feed = _FakeFeed(capacity=1000)
+
+    async def scenario() -> list[_ReadingSocket]:
+        socks = [_ReadingSocket(200) for _ in range(3)]
+        wake = Wake(asyncio.get_running_loop())
+        tasks = [asyncio.create_task(serve_client(s, feed, wake, cfg, 0, "viewer")) for s in socks]
+        for k in range(200):  # a state every 2 ms, while the senders wait on their pace
+            feed.state.append(k, np.full(len(STATE_COLUMNS), float(k)))
+            wake.from_thread()
+            await asyncio.sleep(0.002)
+        for s in socks:
+            await asyncio.wait_for(s.all_seen.wait(), 10)
+            s.closed.set()
+        await asyncio.wait_for(asyncio.gather(*tasks), 5)
+        return socks
+
+    for sock in asyncio.run(scenario()):
+        batches = [m for m in sock.sent if m["type"] == "batch"]
+        assert [int(r[1]) for b in batches for r in b["state"]] == list(range(200))  # every state, in order
+        assert len([b for b in batches if b["state"]]) < 200  # several per message
+        assert batches[-1]["current"] == {"newest": 200}
