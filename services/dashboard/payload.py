@@ -71,6 +71,20 @@ def _age_s(feed: BusFeed, topic: str, t: int) -> float | None:
     return round((t - r) / 1e9, 3) if r else None
 
 
+def tof(feed: BusFeed, t: int) -> dict[str, Any] | None:
+    """The device's newest ToF sample: its raw and firmware-smoothed ranges (mm, along the
+    sensor's ray, not the insertion depth), whether the smoothed one is valid, and its age."""
+    msg = feed.latest.get("device/tof")
+    if msg is None:
+        return None
+    return {
+        "range_raw_mm": msg.range_raw_mm,
+        "range_smoothed_mm": msg.range_smoothed_mm if msg.smoothed_valid else None,
+        "smoothed_valid": msg.smoothed_valid,
+        "age_s": _age_s(feed, "device/tof", t),
+    }
+
+
 def status(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
     """Everything but the trails: health, streams, recorder, diagnostics, device, vision,
     error statistics, envelope."""
@@ -95,6 +109,7 @@ def status(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
         "recorder_age_s": _age_s(feed, "recorder/status", t),
         "diagnostics": message_dict(latest.get("fusion/diagnostics")),
         "device": message_dict(latest.get("device/status")),
+        "tof": tof(feed, t),
         "robot": message_dict(latest.get("bench/robot")),
         "vision": {
             "last": message_dict(latest.get("vision/observation")),
@@ -111,15 +126,20 @@ def status(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
 def state_now(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
     """The newest state as the page and `GET /api/state` show it."""
     msg = feed.latest.get("fusion/state")
+    state = message_dict(msg)
+    if state is not None:  # never filled by fusion (a 0.0 that read as a range): the device's is under "tof"
+        state.pop("depth_smoothed_mm", None)
     last = feed.state.last()
     derived = None
     if last is not None:
         stamp, row = last
         derived = {k: (None if v != v else round(float(v), 4)) for k, v in zip(STATE_COLUMNS, row, strict=True)}
         derived["t_ms"] = round((stamp - t0_ns) / 1e6, 3)
+    t = now_ns()
     return {
-        "state": message_dict(msg),
+        "state": state,
         "derived": derived,
         "received": feed.state.total,
-        "age_s": _age_s(feed, "fusion/state", now_ns()),
+        "age_s": _age_s(feed, "fusion/state", t),
+        "tof": tof(feed, t),
     }

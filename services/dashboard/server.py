@@ -30,7 +30,12 @@ from services.dashboard.websocket import BatchCache, Wake, serve_client
 
 log = logging.getLogger("tiplog.dashboard")
 STATIC = Path(__file__).with_name("static")
-STATIC_FILES = {"dashboard.js": "text/javascript", "dashboard.css": "text/css", "draw.js": "text/javascript"}
+STATIC_FILES = {
+    "dashboard.js": "text/javascript",
+    "dashboard.css": "text/css",
+    "draw.js": "text/javascript",
+    "favicon.svg": "image/svg+xml",
+}
 CSP = (
     "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; connect-src 'self'; "
     "base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
@@ -167,6 +172,11 @@ def create_app(feed: BusFeed, config: DashboardConfig, tokens: Tokens, recorder:
         secure = request.url.scheme == "https"
         resp.set_cookie(COOKIE, token, httponly=True, samesite="strict", path="/", secure=secure)
         return resp
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    def favicon() -> Response:
+        # Asked for by every browser, the sign-in page's too: nothing to protect in an icon.
+        return FileResponse(STATIC / "favicon.svg", media_type="image/svg+xml")
 
     @app.get("/static/{name}", include_in_schema=False)
     def static(name: str, _role: Viewer) -> Response:

@@ -24,6 +24,10 @@ SERVICE_TOPICS: dict[str, tuple[str, ...]] = {
     "dashboard": (),
 }
 
+# Liveliness tokens of tiplog's own tools, not services: `tiplog up`'s router session, a
+# standalone router, `tiplog replay`. Kept out of the services table.
+TOOL_TOKENS = frozenset({"up", "router", "replay"})
+
 
 @dataclass
 class _TopicCount:
@@ -114,10 +118,10 @@ class Health:
 
     def snapshot(self) -> dict[str, dict[str, object]]:
         """{service: {state: up|stale|down, since_s, last_data_age_s}} for the known services
-        and any other token seen."""
+        and any other service's token seen (not the tools': TOOL_TOKENS)."""
         t = now_ns()
         with self._lock:
-            names = sorted(set(SERVICE_TOPICS) | set(self._alive))
+            names = sorted(set(SERVICE_TOPICS) | (set(self._alive) - TOOL_TOKENS))
             alive = dict(self._alive)
             changed = dict(self._changed_ns)
         out: dict[str, dict[str, object]] = {}

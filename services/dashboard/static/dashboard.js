@@ -10,6 +10,12 @@
     current: null, status: null, lastSent: 0, skipped: 0, received: 0,
   };
   window.tiplog = view;  // for tests and the curious: the page's own state, read only
+  // The badge stays "locked" this long after the last gated vision frame: the filter's own lock
+  // window is shorter than the gaps between accepted frames on a loaded host, and a badge that
+  // flickers every half second tells nothing.
+  const LOCK_HOLD_S = 1.0;
+  // Numbers older than this (no new state, no new ToF sample) are dimmed and said to be stale.
+  const STALE_S = 1.0;
 
   function text(id, value) { const el = $(id); if (el && el.textContent !== value) el.textContent = value; }
   function fmt(v, digits) { return typeof v === "number" && isFinite(v) ? v.toFixed(digits) : "\u2013"; }
@@ -62,12 +68,13 @@
     for (const r of msg.state) view.est.push(r);
     for (const r of msg.reference) view.ref.push(r);
     for (const r of msg.vision) if (r[4] === 1) view.vis.push(r);
+    if (msg.state.length) view.stateAt = performance.now();
     view.received += msg.state.length;
     view.skipped += msg.skipped;
     view.lastSent = msg.sent_ns;
     if (msg.current) view.current = msg.current;
     if (msg.predicted !== undefined) view.predicted = msg.predicted;
-    if (msg.status) { view.status = msg.status; updateStatus(msg.status); }
+    if (msg.status) { view.status = msg.status; view.statusAt = performance.now(); updateStatus(msg.status); }
     view.dirty = true;
   }
 
@@ -77,7 +84,6 @@
     if (!cur || !cur.state) return;
     const s = cur.state;
     text("v-depth", fmt(s.depth_mm, 2));
-    text("v-depth-smoothed", fmt(s.depth_smoothed_mm, 2));
     text("v-tilt", fmt(s.tilt_deg, 2));
     text("v-roll", fmt(s.roll_deg, 2));
     text("v-tof-offset", fmt(s.tof_offset_mm, 2));
@@ -87,7 +93,7 @@
     const tNewest = view.est.last(0);
     const sentMs = (view.lastSent - view.hello.t0_ns) / 1e6;
     text("v-display-lag", fmt(sentMs - tNewest, 1));
-    const locked = !!s.vision_locked;
+    const locked = lockShown(s);
     text("lock", locked ? "vision: locked" : lockLost(s));
     setClass($("lock"), locked ? "pill ok" : "pill bad");
     text("e-now", fmt(view.est.last(c.err_mm), 2));
@@ -102,6 +108,11 @@
   // How long the estimate has run without vision: without it only the gyro carries the
   // heading and the error grows with the time (docs/fusion.md), so the time tells how far to
   // trust the tip. (No vision frame in this filter's state, e.g. after a reset: no time.)
+  function lockShown(s) {
+    const last = Number(s.last_vision_stamp_ns || 0), stamp = Number((s.header && s.header.stamp_ns) || 0);
+    return !!s.vision_locked || (last > 0 && stamp >= last && stamp - last < LOCK_HOLD_S * 1e9);
+  }
+
   function lockLost(s) {
     const last = Number(s.last_vision_stamp_ns || 0), stamp = Number((s.header && s.header.stamp_ns) || 0);
     return last > 0 && stamp >= last ? `vision: no lock for ${fmt((stamp - last) / 1e9, 1)} s` : "vision: no lock";
@@ -125,6 +136,8 @@
         v.run_state === "failed" && v.last_error ? `failed: ${v.last_error}` : v.run_state || "\u2013",
         v.restarts === undefined ? "\u2013" : String(v.restarts)], `state-${v.state}`]));
     text("supervisor-event", st.supervisor_event ? `tiplog up: ${st.supervisor_event}` : "");
+    const tof = st.tof;
+    text("v-tof-smoothed", tof ? (tof.smoothed_valid ? fmt(tof.range_smoothed_mm, 1) : "not valid") : "\u2013");
     const streams = st.streams || {};
     fillTable($("streams").tBodies[0], Object.entries(streams).map(([topic, v]) =>
       [[topic, fmt(v.rate_hz, 1), String(v.dropped), String(v.count)]]));
@@ -172,6 +185,26 @@
     }
     text("clock", `t = ${fmt(st.t_ms / 1000, 1)} s`);
   }
+
+  // ---- staleness -----------------------------------------------------------------------------
+  // What stopped coming stays in place, dimmed, with how long it has been: the state (numbers,
+  // lock, path, error) when no state came for STALE_S, the ToF when its sample is that old.
+  function ageS(at, base) { return at ? base + (performance.now() - at) / 1000 : NaN; }
+  function markStale() {
+    if (!view.current) return;
+    const stateAge = ageS(view.stateAt, 0);
+    const stale = stateAge > STALE_S;
+    view.stale = stale;
+    for (const id of ["state-panel", "error-panel", "path", "inset"]) $(id).classList.toggle("stale", stale);
+    const said = stale ? `stale: no new state for ${fmt(stateAge, 1)} s` : "";
+    text("state-stale", said);
+    text("stale", stale ? `fusion: ${said}` : "");
+    $("stale").classList.toggle("hidden", !stale);
+    const tof = view.status && view.status.tof;
+    const tofAge = tof && typeof tof.age_s === "number" ? ageS(view.statusAt, tof.age_s) : NaN;
+    $("tof-row").classList.toggle("stale", tofAge > STALE_S);
+  }
+  setInterval(markStale, 250);
 
   // ---- drawing ------------------------------------------------------------------------------
   function scene() {

@@ -64,6 +64,34 @@
     return { a0: a0 - pad, a1: a1 + pad, b0: b0 - pad, b1: b1 + pad };
   }
 
+  // A trail is drawn as a line only where the tip could have moved so: consecutive rows further
+  // apart than MAX_SPEED_MM_PER_MS over their interval (plus JUMP_SLACK_MM), or more than
+  // MAX_GAP_MS apart in time, are a reset, a re-acquisition or an outage, and the line breaks
+  // there instead of drawing a straight segment the tip never travelled. (2 m/s: fusion's own
+  // bound for a diverged state; a hand-held tip moves well under 1 m/s.)
+  const MAX_SPEED_MM_PER_MS = 2.0, JUMP_SLACK_MM = 2.0, MAX_GAP_MS = 250;
+
+  // Does the line break between rows i - 1 and i? (column 0: time in ms; col0..col0+2: x, y, z in mm)
+  function breaksBefore(trail, i, col0) {
+    if (i <= 0) return true;
+    const dt = trail.get(i, 0) - trail.get(i - 1, 0);
+    if (!(dt >= 0) || dt > MAX_GAP_MS) return true;
+    const d = Math.hypot(trail.get(i, col0) - trail.get(i - 1, col0), trail.get(i, col0 + 1) - trail.get(i - 1, col0 + 1),
+      trail.get(i, col0 + 2) - trail.get(i - 1, col0 + 2));
+    return !(d <= MAX_SPEED_MM_PER_MS * dt + JUMP_SLACK_MM);
+  }
+
+  // The runs of rows drawn as one line each: [[first, last], ...] (for tests and the curious).
+  function segments(trail, col0, from) {
+    const out = [];
+    for (let i = from || 0; i < trail.n; i++) {
+      if (trail.get(i, col0) !== trail.get(i, col0)) continue;
+      if (i === (from || 0) || !out.length || breaksBefore(trail, i, col0) || out[out.length - 1][1] !== i - 1) out.push([i, i]);
+      else out[out.length - 1][1] = i;
+    }
+    return out;
+  }
+
   function polyline(ctx, trail, col0, axes, m, color, width, from) {
     ctx.strokeStyle = color; ctx.lineWidth = width; ctx.beginPath();
     let pen = false;
@@ -71,7 +99,7 @@
       const a = trail.get(i, col0 + axes[0]), b = trail.get(i, col0 + axes[1]);
       if (a !== a || b !== b) { pen = false; continue; }
       const x = m.X(a), y = m.Y(b);
-      if (pen) ctx.lineTo(x, y); else { ctx.moveTo(x, y); pen = true; }
+      if (pen && !breaksBefore(trail, i, col0)) ctx.lineTo(x, y); else { ctx.moveTo(x, y); pen = true; }
     }
     ctx.stroke();
   }
@@ -158,8 +186,13 @@
     }
     ctx.fillStyle = COLORS.est; ctx.beginPath(); ctx.arc(w / 2, h / 2, 4 * dpr, 0, 2 * Math.PI); ctx.fill();
     ring(ctx, scene.predicted, a, m, COLORS.est, dpr);
-    ctx.fillStyle = COLORS.text; ctx.font = `${11 * dpr}px sans-serif`;
-    ctx.fillText(`${sizeMm} mm \u00d7 ${sizeMm} mm, grid 5 mm`, 6 * dpr, h - 6 * dpr);
+    // The caption on a backing of its own: the trail and the grid never run through it.
+    const caption = `${sizeMm} mm \u00d7 ${sizeMm} mm, grid 5 mm`;
+    ctx.font = `${11 * dpr}px sans-serif`;
+    ctx.fillStyle = "rgba(12, 15, 18, 0.85)";
+    ctx.fillRect(2 * dpr, h - 20 * dpr, ctx.measureText(caption).width + 8 * dpr, 18 * dpr);
+    ctx.fillStyle = COLORS.text;
+    ctx.fillText(caption, 6 * dpr, h - 6 * dpr);
   }
 
   // env: {depth_bins_mm: [lo, hi, step], tilt_bins_deg: [lo, hi, step], cells: [[i, j, count]]}
@@ -179,12 +212,17 @@
     }
     ctx.strokeStyle = COLORS.grid; ctx.strokeRect(left, 6 * dpr, pw, ph);
     ctx.fillStyle = COLORS.text; ctx.font = `${11 * dpr}px sans-serif`;
-    for (let d = d0; d <= d1; d += 20) ctx.fillText(String(d), left + ((d - d0) / (d1 - d0)) * pw - 8 * dpr, h - 12 * dpr);
+    // Ticks centred on their value, the last one ending at the plot's edge (it was cut off).
+    for (let d = d0; d <= d1; d += 20) {
+      ctx.textAlign = d + 20 > d1 ? "right" : "center";
+      ctx.fillText(String(d), d + 20 > d1 ? left + pw : left + ((d - d0) / (d1 - d0)) * pw, h - 12 * dpr);
+    }
+    ctx.textAlign = "left";
     for (let t = t0; t <= t1; t += 10) ctx.fillText(String(t), 20 * dpr, 6 * dpr + ph - ((t - t0) / (t1 - t0)) * ph + 4 * dpr);
     ctx.fillText("insertion depth L (mm)", left + pw / 2 - 50 * dpr, h - 1 * dpr);
     ctx.save(); ctx.translate(10 * dpr, 6 * dpr + ph / 2 + 30 * dpr); ctx.rotate(-Math.PI / 2);
     ctx.fillText("tilt (deg)", 0, 0); ctx.restore();
   }
 
-  window.TiplogDraw = { Trail, drawPath, drawInset, drawEnvelope };
+  window.TiplogDraw = { Trail, drawPath, drawInset, drawEnvelope, segments, breaksBefore };
 })();

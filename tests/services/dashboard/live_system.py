@@ -242,9 +242,12 @@ def signed_in(browser, system: LiveSystem, token: str, viewport=(1440, 1000)):
     return ctx, page
 
 
+LOCK_HOLD_S = 1.0  # the page's: "locked" this long after the last gated vision frame
+
+
 def lock_text(st: fusion_pb2.FusionState) -> str:
     """The vision pill's text for a state, as the page computes it (in doubles, as JavaScript)."""
-    if st.vision_locked:
-        return "vision: locked"
     last, stamp = float(st.last_vision_stamp_ns), float(st.header.stamp_ns)
+    if st.vision_locked or (last > 0 and stamp >= last and stamp - last < LOCK_HOLD_S * 1e9):
+        return "vision: locked"
     return f"vision: no lock for {(stamp - last) / 1e9:.1f} s" if last > 0 and stamp >= last else "vision: no lock"
