@@ -2,7 +2,7 @@
 it dies, and the state of every one reported on the bus (`system/supervisor`).
 
 Back-off: a service that dies waits 0.5 s before its first restart (a child may ask for less:
-the recorder, whose absence loses data), doubling per quick death up to 30 s; one that ran
+those whose absence loses data or blinds the display), doubling per quick death up to 30 s; one that ran
 for `stable_after_s` starts again from its first delay. Times are host monotonic seconds;
 stamps on the bus are `tiplog.clock.now_ns`.
 

@@ -63,8 +63,9 @@ def register(p: argparse.ArgumentParser) -> None:
 # Services that read the calibration file (`calibration_file` in their configuration).
 CALIBRATION_READERS = ("fusion", "recorder", "dashboard", "igtlink")
 STOP_LAST = ("recorder",)  # records what the others publish as they stop
-# While the recorder is down nothing is recorded: it is restarted at once the first time.
-FIRST_DELAY_S = {"recorder": 0.05}
+# Restarted at once the first time: while the recorder is down nothing is recorded, while the
+# bench is down no device stream flows, while fusion is down the display is blind.
+FIRST_DELAY_S = {"recorder": 0.05, "bench": 0.05, "fusion": 0.05}
 
 
 def _config_fields(name: str) -> set[str]:
