@@ -74,6 +74,11 @@ def test_numbers_are_a_published_state_of_live_fusion(browser, real_system, arti
         # The present, from fusion/predicted, drawn as a ring beside the held-back estimate.
         page.wait_for_function("Array.isArray(window.tiplog.predicted)", timeout=10_000)
         assert len(page.evaluate("window.tiplog.predicted")) == 3
+        # The device's own smoothed ToF range, a number and not 0.00 (a field fusion never filled).
+        page.wait_for_function("parseFloat(document.getElementById('v-tof-smoothed').textContent) > 0", timeout=10_000)
+        # The trail breaks only where the tip could not have moved so (a reset, a re-acquisition).
+        resets = page.evaluate("(window.tiplog.status.diagnostics || {}).resets || 0")
+        assert len(page.evaluate("window.TiplogDraw.segments(window.tiplog.est, 1)")) <= 2 + 2 * int(resets)
         page.screenshot(path=str(artifacts / "dashboard-live-fusion.png"), full_page=True)
         assert page.errors == []
     finally:
