@@ -7,8 +7,8 @@ is the bench's static error models alone (no motion sources: today's draws for a
 sheets (docs/bench.md traces each number); `harsh` doubles every motion source of `paper`.
 The estimators are never told which profile produced a session.
 
-A profile may gain further sections (for example `render` for the pixel tier); each section
-is a dict of scenario fields, merged like a scenario file.
+Each section is a dict of scenario fields, merged like a scenario file; `render` is the pixel
+tier's camera and episodes (the measurement tier ignores it).
 """
 
 from __future__ import annotations
@@ -57,6 +57,34 @@ _PAPER: dict[str, Any] = {
     },
 }
 
+# The pixel tier's camera as built and its episodes (services/bench/render/effects.py; docs/bench.md,
+# "Pixel tier in motion"): `harsh` about doubles every motion and episode source of `paper`.
+_RENDER_PAPER: dict[str, Any] = {
+    "exposure_ms": 16.0,
+    "lens_error_sd_frac": 0.0045,
+    "lens_k1_error_sd": 0.004,
+    "shaft_tilt_sd_deg": 0.10,
+    "occluder_rate_per_min": 1.0,
+    "occluder_duration_s": (1.0, 5.0),
+    "smoke_rate_per_min": 0.5,
+    "smoke_duration_s": (3.0, 10.0),
+    "glare_rate_per_min": 1.0,
+    "glare_duration_s": (0.5, 3.0),
+}
+_RENDER_HARSH: dict[str, Any] = {
+    "exposure_ms": 33.0,
+    "lens_error_sd_frac": 0.009,
+    "lens_k1_error_sd": 0.008,
+    "shaft_tilt_sd_deg": 0.20,
+    "occluder_rate_per_min": 2.0,
+    "occluder_duration_s": (1.0, 10.0),
+    "smoke_rate_per_min": 1.0,
+    "smoke_duration_s": (3.0, 10.0),
+    "glare_rate_per_min": 2.0,
+    "glare_duration_s": (0.5, 6.0),
+}
+_PAPER["render"] = _RENDER_PAPER
+
 # Every motion source about twice `paper` (the geometry stays the paper's bench).
 _DOUBLED = {
     "vision": (
@@ -82,6 +110,7 @@ def _harsh() -> dict[str, Any]:
     out["vision"]["edge_width_px"] = 0.5 * _PAPER["vision"]["edge_width_px"]  # blur counts twice as much
     out["vision"]["gate_quality_weight"] = 0.5  # the gate follows quality less closely
     out["tof"]["pose_corr_spread"] = 3.0
+    out["render"] = copy.deepcopy(_RENDER_HARSH)
     return out
 
 

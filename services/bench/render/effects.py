@@ -7,8 +7,8 @@ A `RenderSession` holds these per-session draws; `render_frame` takes it with th
 Without one (or with every field at its default) the renderer draws what it drew before these
 effects existed, draw for draw of the caller's generator.
 
-`RENDER_PROFILE_OVERRIDES` are the RenderParams values of the bench's profiles; `clean` is the
-defaults (today's rendering).
+`RENDER_PROFILE_OVERRIDES` are the RenderParams values of the bench's profiles (their `render`
+sections, which every pixel-tier session of that profile renders with); `clean` is the defaults.
 """
 
 from __future__ import annotations
@@ -18,37 +18,13 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from services.bench.profiles import PROFILES
 from services.bench.render.geometry import InstrumentGeometry, silhouette_lines
 from tiplog.camera_model import CameraModel
 
-# RenderParams values per bench profile (`clean` = the defaults); `harsh` about doubles every motion and
-# episode source of `paper`. See docs/bench.md, "Pixel tier in motion", for each value's reason.
+# RenderParams values per bench profile (`clean` = the defaults): each profile's `render` section.
 RENDER_PROFILE_OVERRIDES: dict[str, dict[str, object]] = {
-    "clean": {},
-    "paper": {
-        "exposure_ms": 16.0,
-        "lens_error_sd_frac": 0.0045,
-        "lens_k1_error_sd": 0.004,
-        "shaft_tilt_sd_deg": 0.10,
-        "occluder_rate_per_min": 1.0,
-        "occluder_duration_s": (1.0, 5.0),
-        "smoke_rate_per_min": 0.5,
-        "smoke_duration_s": (3.0, 10.0),
-        "glare_rate_per_min": 1.0,
-        "glare_duration_s": (0.5, 3.0),
-    },
-    "harsh": {
-        "exposure_ms": 33.0,
-        "lens_error_sd_frac": 0.009,
-        "lens_k1_error_sd": 0.008,
-        "shaft_tilt_sd_deg": 0.20,
-        "occluder_rate_per_min": 2.0,
-        "occluder_duration_s": (1.0, 10.0),
-        "smoke_rate_per_min": 1.0,
-        "smoke_duration_s": (3.0, 10.0),
-        "glare_rate_per_min": 2.0,
-        "glare_duration_s": (0.5, 6.0),
-    },
+    name: dict(prof.get("render", {})) for name, prof in PROFILES.items()
 }
 
 EPISODE_KINDS = ("occluder", "smoke", "glare")

@@ -164,6 +164,15 @@ def test_occluder_moves_smoothly_over_its_episode():
     assert iou > 0.8  # 0.1 s apart: the same instrument, moved a little
 
 
+def test_every_profile_renders_with_its_own_render_section():
+    from services.bench.scenario import load_scenario
+
+    for name, ov in RENDER_PROFILE_OVERRIDES.items():
+        params = load_scenario("demo", [f"profile={name}"]).render
+        assert params == RenderParams(**ov), name
+    assert load_scenario("demo").render == RenderParams(**RENDER_PROFILE_OVERRIDES["paper"])  # the default
+
+
 def test_simulated_pixel_session_renders_over_the_exposure_deterministically():
     from services.bench.scenario import load_scenario
     from services.bench.simulation import simulate_session
@@ -177,8 +186,9 @@ def test_simulated_pixel_session_renders_over_the_exposure_deterministically():
     s = a._render_session
     assert s.lens != sc.camera.model() and not np.array_equal(s.T_tool_shaft, np.eye(4))
     # the clean profile draws what the renderer draws at the frame's instant, with no session effects
-    c = simulate_session(load_scenario("static"), 1, "pixel", 0.4)
-    ref = simulate_session(load_scenario("static"), 1, "pixel", 0.4)  # its generator where c's starts
+    clean = load_scenario("static", ["profile=clean"])
+    c = simulate_session(clean, 1, "pixel", 0.4)
+    ref = simulate_session(clean, 1, "pixel", 0.4)  # its generator where c's starts
     img_c = c.render_frame(0)
-    direct = render_frame(sc.camera.model(), ref.frame_pose_cam(0), c._render_params, ref._render_rng)
+    direct = render_frame(clean.camera.model(), ref.frame_pose_cam(0), c._render_params, ref._render_rng)
     assert np.array_equal(img_c, direct)
