@@ -3,7 +3,7 @@ system (measurement tier, real processes, the device through a pseudo-terminal).
 the time until the killed service's data flows again, what each topic lost (the longest hole
 in the recordings around the fault), what the files hold and what `tiplog info` says.
 
-    nice -n 10 python -m benchmarks.faults [--settle 8] [--json out.json]
+    nice -n 10 python -m benchmarks.faults [--settle 8] [--faults fusion,bench] [--json out.json]
 
 Data flowing again: bench -> bench/robot, sensor_gateway -> device/gyro, fusion ->
 fusion/state, vision -> its liveliness token (the measurement tier sends it no frames),
@@ -24,6 +24,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 
 from services.recorder.info import inspect
@@ -114,7 +115,8 @@ def _holes(paths: list[Path], windows: dict[str, tuple[int, int]]) -> dict[str, 
     return out
 
 
-def run(settle_s: float) -> dict:
+def run(settle_s: float, faults: Sequence[str] = (*SERVICES, "tiplog up")) -> dict:
+    """Kill each of `faults` (services, then `tiplog up`) in turn; the figures of `analyse`."""
     tmp = Path(tempfile.mkdtemp(prefix="tiplog-faults-"))
     config = system_config(tmp)
     arrivals = Arrivals()
@@ -126,7 +128,7 @@ def run(settle_s: float) -> dict:
             up.bus.subscribe(topic, arrivals.on(topic))
         up.poll_api("/api/state", lambda a: a["received"] > 400, 240)
         time.sleep(settle_s)
-        for name in SERVICES:
+        for name in [n for n in SERVICES if n in faults]:
             pid = up.run_of(up.latest_status(), name).pid
             t_kill = now_ns()
             os.kill(pid, signal.SIGKILL)
@@ -158,6 +160,10 @@ def run(settle_s: float) -> dict:
             results[name] = r
             windows[name] = (t_kill, t_kill + int(10e9))
             time.sleep(settle_s)
+        if "tiplog up" not in faults:
+            up.stop()
+            (tmp / "faults.json").write_text(json.dumps({"results": results}))
+            return analyse(tmp)
         t_kill = now_ns()
         pids = [run.pid for run in up.latest_status().services]
         os.kill(up.proc.pid, signal.SIGKILL)
@@ -193,9 +199,9 @@ def analyse(tmp: Path) -> dict:
     files = sorted((tmp / "rec").glob("*.mcap"))
     readable = _recovered(files)
     # the recorder's new file: its first message after the kill
-    t_rec = results["recorder"]["t_kill_ns"]
+    t_rec = results["recorder"]["t_kill_ns"] if "recorder" in results else None
     firsts = []
-    for p in readable:
+    for p in readable if t_rec is not None else []:
         spans = topic_spans(p, ["device/gyro"])
         if "device/gyro" in spans and spans["device/gyro"][0] > t_rec:
             firsts.append(spans["device/gyro"][0])
@@ -241,9 +247,18 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--settle", type=float, default=8.0, help="seconds of normal running between faults")
     ap.add_argument("--json", help="write the figures here as JSON")
+    ap.add_argument(
+        "--faults",
+        default=",".join([*SERVICES, "tiplog up"]),
+        help="which to kill, in this order (default: every service, then tiplog up)",
+    )
     ap.add_argument("--analyse", metavar="FOLDER", help=argparse.SUPPRESS)  # figures of a finished run again
     a = ap.parse_args(argv)
-    r = analyse(Path(a.analyse)) if a.analyse else run(a.settle)
+    faults = [f.strip() for f in a.faults.split(",") if f.strip()]
+    unknown = sorted(set(faults) - {*SERVICES, "tiplog up"})
+    if unknown:
+        ap.error(f"--faults: unknown {', '.join(unknown)} (any of {', '.join(SERVICES)}, tiplog up)")
+    r = analyse(Path(a.analyse)) if a.analyse else run(a.settle, faults)
     if a.json:
         Path(a.json).write_text(json.dumps(r, indent=1))
     print(f"{'fault':<16}{'restart s':>10}{'flowing s':>10}{'target s':>9}  longest hole per topic (s)")
@@ -266,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
             f"time gaps {info['time_gaps']} {info['time_gaps_per_topic']}; replayed supervisor events "
             f"{len(info['replayed_supervisor_events'])}: {info['replayed_supervisor_events'][:4]}"
         )
-    print(f"(tiplog up killed: {r['faults']['tiplog up']}; folder {r['folder']})")
+    print(f"(tiplog up killed: {r['faults'].get('tiplog up', 'not this run')}; folder {r['folder']})")
     return 0 if ok else 1
 
 

@@ -34,3 +34,19 @@ def bus_pair_configs(endpoint: str) -> tuple[BusConfig, BusConfig]:
         BusConfig(listen=[endpoint], connect=[], prefix=prefix),
         BusConfig(connect=[endpoint], prefix=prefix),
     )
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _bench_pass_cache(tmp_path_factory: pytest.TempPathFactory):
+    """Every bench the tests start (in this process or a child) caches its simulated passes in
+    one folder of this session, not in the user's cache."""
+    import os
+
+    key = "TIPLOG_BENCH__PASS_CACHE_DIR"
+    before = os.environ.get(key)
+    os.environ[key] = str(tmp_path_factory.mktemp("bench-passes"))
+    yield
+    if before is None:
+        os.environ.pop(key, None)
+    else:
+        os.environ[key] = before

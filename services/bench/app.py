@@ -5,6 +5,7 @@ ground truth on the bus."""
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 from collections.abc import Sequence
@@ -35,25 +36,47 @@ class BenchConfig(ServiceConfig):
     # Where the as-calibrated constants are written at start-up (tiplog.calibration format, the
     # same record as a session's `calibration_as_calibrated`); "" = not written.
     calibration_file: str = ""
+    # Simulated passes kept for the next start with the same scenario, seed and sources (a
+    # restart plays at once instead of simulating for seconds); "" = none kept.
+    pass_cache_dir: str = Field(default_factory=lambda: os.path.join(_cache_home(), "tiplog", "bench"))
 
 
-def write_calibration(cfg: BenchConfig) -> Path | None:
-    """Write the as-calibrated constants of (scenario, seed) to `cfg.calibration_file`, under a
-    temporary name renamed when complete (a reader never sees half a file); None when unset."""
+def _cache_home() -> str:
+    return os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+
+
+def _cached_pass(cfg: BenchConfig) -> Path | None:
+    """Where this configuration's pass is cached (whether or not it is there yet); None when
+    the cache is off."""
+    if not cfg.pass_cache_dir:
+        return None
+    from services.bench import playback
+
+    key = playback.cache_key(cfg.scenario, cfg.scenario_overrides, cfg.seed, cfg.duration_s, cfg.camera_tier)
+    return playback.cache_path(cfg.pass_cache_dir, key)
+
+
+def write_calibration(cfg: BenchConfig, text: str | None = None) -> Path | None:
+    """Write the as-calibrated constants of (scenario, seed) to `cfg.calibration_file` (or
+    `text`, that file as a cached pass holds it), under a temporary name renamed when complete
+    (a reader never sees half a file); None when unset."""
     if not cfg.calibration_file:
         return None
-    from services.bench.scenario import load_scenario
-    from services.bench.simulation import as_calibrated_constants
-    from tiplog.calibration import Calibration
-
-    scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
-    calib = Calibration.from_dict(as_calibrated_constants(scenario, cfg.seed).to_dict(), where="bench")
     final = Path(cfg.calibration_file)
     if not final.parent.is_dir():
         raise ConfigError(f"config error: calibration_file: folder {final.parent} does not exist")
     tmp = final.with_name(f".{final.name}.{os.getpid()}.partial")
     try:
-        calib.save_yaml(tmp, extra={"source": f"bench scenario {scenario.name}, seed {cfg.seed}, as calibrated"})
+        if text is not None:
+            tmp.write_text(text)
+        else:
+            from services.bench.scenario import load_scenario
+            from services.bench.simulation import as_calibrated_constants
+            from tiplog.calibration import Calibration
+
+            scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
+            calib = Calibration.from_dict(as_calibrated_constants(scenario, cfg.seed).to_dict(), where="bench")
+            calib.save_yaml(tmp, extra={"source": f"bench scenario {scenario.name}, seed {cfg.seed}, as calibrated"})
         os.replace(tmp, final)
     finally:
         tmp.unlink(missing_ok=True)
@@ -63,7 +86,11 @@ def write_calibration(cfg: BenchConfig) -> Path | None:
 def check_duration(cfg: BenchConfig) -> None:
     """ConfigError when one pass (duration_s, else the scenario's) holds no sample of some
     device stream: the simulation cannot play it (an empty stream was a traceback after the
-    bus had opened). The rule and the words of `tiplog sim generate`."""
+    bus had opened). The rule and the words of `tiplog sim generate`. A configuration whose pass
+    is cached passed it when the pass was simulated."""
+    cached = _cached_pass(cfg)
+    if cached is not None and cached.is_file():
+        return
     from services.bench.scenario import load_scenario
     from services.bench.simulation import duration_problem
 
@@ -74,13 +101,28 @@ def check_duration(cfg: BenchConfig) -> None:
         raise ConfigError(f"config error: {problem}")
 
 
-def _prepare(cfg: BenchConfig):
-    """Scenario + one simulated pass (imports Pinocchio and the models: seconds)."""
-    from services.bench.live import prepare
-    from services.bench.scenario import load_scenario
+def _prepare(cfg: BenchConfig, log: logging.Logger):
+    """The pass to play, with the calibration file written: from the pass cache when it holds
+    this configuration's, else simulated (imports Pinocchio and the models: seconds) and cached."""
+    from services.bench import playback
 
-    scenario = load_scenario(cfg.scenario, cfg.scenario_overrides)
-    return prepare(scenario, cfg.seed, cfg.camera_tier, cfg.duration_s)
+    cached = _cached_pass(cfg)
+    play = playback.load(cached) if cached is not None else None
+    if play is not None:
+        path = write_calibration(cfg, play.calibration_yaml)
+        log.info("pass loaded from %s", cached)
+    else:
+        from services.bench.live import prepare
+        from services.bench.scenario import load_scenario
+
+        path = write_calibration(cfg)
+        sim = prepare(load_scenario(cfg.scenario, cfg.scenario_overrides), cfg.seed, cfg.camera_tier, cfg.duration_s)
+        play = playback.Playback.from_session(sim, path.read_text() if path is not None else None)
+        if cached is not None:
+            playback.store(cached, play)
+    if path is not None:
+        log.info("as-calibrated constants written to %s", path)
+    return play
 
 
 def body(ctx: ServiceContext[BenchConfig]) -> None:
@@ -92,10 +134,7 @@ def body(ctx: ServiceContext[BenchConfig]) -> None:
 
     def work() -> None:
         try:
-            path = write_calibration(cfg)
-            if path is not None:
-                ctx.log.info("as-calibrated constants written to %s", path)
-            result.append(_prepare(cfg))
+            result.append(_prepare(cfg, ctx.log))
         except Exception as e:  # reported on the main thread
             result.append(e)
         finally:
@@ -113,12 +152,11 @@ def body(ctx: ServiceContext[BenchConfig]) -> None:
     sim = result[0]
 
     from services.bench.live import LiveBench
-    from services.bench.messages import device_rates_hz
     from tiplog.devproto.emulator import DeviceEmulator
 
     emulator = None
     if cfg.device_link:
-        emulator = DeviceEmulator(cfg.device_link, rates_hz=device_rates_hz(sim.scenario), drop_without_host=True)
+        emulator = DeviceEmulator(cfg.device_link, rates_hz=sim.device_rates_hz, drop_without_host=True)
         emulator.plug()
         ctx.log.info("device on %s", cfg.device_link)
     try:

@@ -1,7 +1,8 @@
 """Live bench: a simulated session played out in real time.
 
 One pass of the scenario (robot truth, device streams, camera) is simulated up front with the
-same models as offline generation, then played against the host clock, looping:
+same models as offline generation (or loaded from the pass cache, `services.bench.playback`),
+then played against the host clock, looping:
 - device samples leave through a pseudo-terminal in the device's own serial protocol
   (tiplog.devproto), each written at its simulated host-arrival time, so the gateway's real
   serial path stamps and publishes them;
@@ -19,13 +20,13 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 
-from services.bench import messages
-from services.bench.scenario import Scenario
-from services.bench.simulation import SimulatedSession, simulate_session
+from services.bench.playback import Playback
+from tiplog import images
 from tiplog.bus import Bus
 from tiplog.clock import now_ns
 from tiplog.devproto.emulator import DeviceEmulator
@@ -47,7 +48,7 @@ class LiveCounters:
     loops: int = 0
 
 
-def _device_schedule(sim: SimulatedSession) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _device_schedule(sim: Playback) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All device samples in arrival order: (arrival_ns, stream code, index in stream)."""
     t = np.concatenate([sim.streams[n].arrival_ns for n in _STREAMS])
     kind = np.concatenate([np.full(len(sim.streams[n]), i, dtype=np.int8) for i, n in enumerate(_STREAMS)])
@@ -61,7 +62,7 @@ class LiveBench:
 
     def __init__(
         self,
-        sim: SimulatedSession,
+        sim: Playback,
         bus: Bus,
         emulator: DeviceEmulator | None,
         stop: threading.Event,
@@ -130,7 +131,7 @@ class LiveBench:
         m.rcm_m.x, m.rcm_m.y, m.rcm_m.z = r.tolist()
         m.depth_mm = depth * 1e3
         m.rcm_error_mm = float(np.linalg.norm((p - r) - depth * u) * 1e3)
-        m.scenario = self.sim.scenario.name
+        m.scenario = self.sim.scenario_name
         m.trial = int(gt.trial[i])
         m.phase = str(int(gt.phase[i]))
         return m
@@ -140,7 +141,7 @@ class LiveBench:
         msg = FrameTransforms()
         for parent, child, T in (
             ("base", "tool", None),
-            ("base", "camera", self.sim.truth.T_base_camera),
+            ("base", "camera", self.sim.T_base_camera),
         ):
             tf = msg.transforms.add()
             tf.timestamp.FromNanoseconds(stamp_ns)
@@ -173,7 +174,7 @@ class LiveBench:
                         self._send_device(int(kind[j]), int(idx[j]), off)
                         j += 1
                     if rel >= next_hello:
-                        self.emulator.send_hello((rel + off + self.sim.clock.offset_ns) // 1000)
+                        self.emulator.send_hello((rel + off + self.sim.clock_offset_ns) // 1000)
                         next_hello += 1_000_000_000
                 else:
                     j = int(np.searchsorted(t_dev, rel, side="right"))
@@ -199,8 +200,10 @@ class LiveBench:
     # camera ---------------------------------------------------------------------
     def _camera(self) -> None:
         sim = self.sim
-        cam = sim.scenario.camera.model()
+        cam = sim.camera
         frames = sim.camera_frames
+        if self._image_pub is not None:
+            sim.load_session()  # a cached pixel pass: the frames due meanwhile are skipped as late
         n = len(frames.t_true_ns)
         loop_k = 0
         next_info = 0
@@ -219,7 +222,7 @@ class LiveBench:
                 cap = base + int(frames.capture_ns[k])
                 if self._image_pub is not None:
                     img = sim.render_frame(k)
-                    self._image_pub.put_bytes(messages.raw_image(img, cap, cam.frame_id))
+                    self._image_pub.put_bytes(images.raw_image(img, cap, cam.frame_id).SerializeToString())
                 elif self._vision_pub is not None:
                     self._vision_pub.put_bytes(self._vision_payload(k, base))
                 self.counters.frames_published += 1
@@ -249,8 +252,10 @@ class LiveBench:
             t.join(timeout=1.0)
 
 
-def prepare(scenario: Scenario, seed: int, camera_tier: str, duration_s: float | None) -> SimulatedSession:
-    """Simulate one pass of the scenario for live playback."""
+def prepare(scenario: Any, seed: int, camera_tier: str, duration_s: float | None) -> Any:
+    """Simulate one pass of the scenario (a SimulatedSession) for live playback."""
+    from services.bench.simulation import simulate_session
+
     t = time.perf_counter()
     tier = "pixel" if camera_tier == "pixel" else "measurement"
     sim = simulate_session(scenario, seed, tier, duration_s)
