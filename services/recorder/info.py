@@ -11,6 +11,7 @@ from the log times against the topic's own rate: an outage across a restart show
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -155,6 +156,7 @@ def inspect(path: str | Path) -> dict[str, Any]:
     start, end = (min(firsts), max(lasts)) if firsts else (None, None)
     return {
         "file": str(path),
+        "recorder_gaps": _recorder_gaps(metadata),
         "bytes": path.stat().st_size,
         "indexed": indexed,
         "start_ns": start,
@@ -167,6 +169,19 @@ def inspect(path: str | Path) -> dict[str, Any]:
         "metadata": metadata,
         "attachments": attachments,
     }
+
+
+def _recorder_gaps(metadata: dict[str, dict[str, str]]) -> int | None:
+    """The upstream gaps the recorder counted itself, per publisher (it knows each message's
+    publisher; the file does not), over its session: None when the file has no such counts
+    (cut by a crash, written by another tool)."""
+    counts = metadata.get("recorder_counts")
+    if not counts:
+        return None
+    try:
+        return sum(int(json.loads(v).get("upstream_gaps", 0)) for v in counts.values())
+    except (ValueError, TypeError, AttributeError):
+        return None
 
 
 def _messages(f, indexed: bool, metadata: dict, attachments: list):  # type: ignore[no-untyped-def]
@@ -202,7 +217,7 @@ def format_info(info: dict[str, Any]) -> str:
             if info["start_ns"] is not None
             else "duration:  - (no complete message could be read)"
         ),
-        f"messages:  {info['messages']}   sequence gaps: {info['gaps']}   "
+        f"messages:  {info['messages']}   sequence gaps: {info['gaps']}{_recorder_note(info)}   "
         f"time gaps: {info.get('time_gaps', 0)} (intervals over 10x the topic's own)",
         "",
     ]
@@ -219,6 +234,16 @@ def format_info(info: dict[str, Any]) -> str:
                 v = v if len(v) <= 100 else v[:97] + "..."
                 out.append(f"    {k}: {v}")
     return "\n".join(out)
+
+
+def _recorder_note(info: dict[str, Any]) -> str:
+    """Beside the gaps read from the file's sequence numbers, the recorder's own count when the
+    two differ (a file that does not say which publisher wrote a message is read by inference;
+    a session split into several files is counted whole by the recorder)."""
+    rec = info.get("recorder_gaps")
+    if rec is None or rec == info["gaps"]:
+        return ""
+    return f" (the recorder counted {rec} for its session, per publisher)"
 
 
 def _topic_table(topics: dict[str, dict[str, Any]]) -> list[str]:

@@ -89,3 +89,22 @@ def test_the_recorders_counts_have_per_publisher_sequence_gaps_and_time_gaps():
         c.admit(SampleInfo("device/gyro", k, t, t, 3, "tiplog.v1.Gyro"), 10)
     gyro = c.snapshot()["device/gyro"]
     assert gyro["upstream_gaps"] == 3 and gyro["time_gaps"] == 1 and 2.9 < gyro["time_gap_s"] < 3.01, gyro
+
+
+def test_the_recorder_s_own_count_is_said_beside_the_sequence_gaps_when_they_differ(tmp_path):
+    import json
+
+    samples = [("device/gyro", k * 5 * MS, k) for k in range(100) if k != 50]  # one sample missing
+    for name, upstream in (("same", 1), ("other", 4)):
+        with McapWriter(tmp_path / f"{name}.mcap") as w:
+            for topic, t, seq in samples:
+                m = device_pb2.Gyro()
+                m.header.stamp_ns = t
+                w.write(topic, m, t, sequence=seq)
+            w.add_metadata("recorder_counts", {"device/gyro": json.dumps({"written": 99, "upstream_gaps": upstream})})
+    same = inspect(tmp_path / "same.mcap")
+    assert same["gaps"] == 1 and same["recorder_gaps"] == 1
+    assert "sequence gaps: 1   time gaps" in format_info(same)
+    other = inspect(tmp_path / "other.mcap")
+    assert other["gaps"] == 1 and other["recorder_gaps"] == 4
+    assert "sequence gaps: 1 (the recorder counted 4 for its session, per publisher)" in format_info(other)
