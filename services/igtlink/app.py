@@ -11,6 +11,7 @@ without one `TrocarToReference` is not sent.
 
 from __future__ import annotations
 
+import errno
 import logging
 import threading
 import time
@@ -193,12 +194,14 @@ def serve(bus: Bus, config: IgtlinkConfig, stop: threading.Event, ready: threadi
     try:
         server = BroadcastServer(config.host, config.port, send_timeout_s=config.send_timeout_s)
     except OSError as e:
-        log.error(
-            "cannot listen on %s:%d (%s): another OpenIGTLink server holds it; set igtlink.port",
-            config.host,
-            config.port,
-            e.strerror or e,
+        why = (
+            "another OpenIGTLink server holds it; set igtlink.port"
+            if e.errno == errno.EADDRINUSE
+            else "set igtlink.host to an address of this machine"
+            if e.errno == errno.EADDRNOTAVAIL
+            else "set igtlink.host and igtlink.port"
         )
+        log.error("cannot listen on %s:%d (%s): %s", config.host, config.port, e.strerror or e, why)
         raise SystemExit(1) from None
     with server:
         streamer = Streamer(

@@ -114,6 +114,7 @@ def test_a_service_failing_at_start_is_given_up_on_and_up_exits_non_zero(tmp_pat
         assert given_up, "\n".join(lines)
         assert "igtlink failed at start 5 times in a row (exited with 1); not restarted: " in given_up[0]
         assert f"cannot listen on 192.0.2.1:{port}" in given_up[0]
+        assert given_up[0].endswith("set igtlink.host to an address of this machine"), given_up[0]
         assert sum("igtlink exited with 1" in ln for ln in lines) == 4  # restarted four times before that
         up.send_signal(signal.SIGINT)
         rest = up.stderr.read()
