@@ -95,7 +95,7 @@
     text("v-display-lag", fmt(sentMs - tNewest, 1));
     const locked = lockShown(s);
     text("lock", locked ? "vision: locked" : lockLost(s));
-    setClass($("lock"), locked ? "pill ok" : "pill bad");
+    setClass($("lock"), (locked ? "pill ok" : "pill bad") + (view.stale ? " stale" : ""));
     text("e-now", fmt(view.est.last(c.err_mm), 2));
     text("e-radial", fmt(view.est.last(c.err_radial_mm), 2));
     text("e-tangential", fmt(view.est.last(c.err_tangential_mm), 2));
@@ -195,7 +195,7 @@
     const stateAge = ageS(view.stateAt, 0);
     const stale = stateAge > STALE_S;
     view.stale = stale;
-    for (const id of ["state-panel", "error-panel", "path", "inset"]) $(id).classList.toggle("stale", stale);
+    for (const id of ["state-panel", "error-panel", "path", "inset", "lock"]) $(id).classList.toggle("stale", stale);
     const said = stale ? `stale: no new state for ${fmt(stateAge, 1)} s` : "";
     text("state-stale", said);
     text("stale", stale ? `fusion: ${said}` : "");

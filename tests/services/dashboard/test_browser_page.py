@@ -31,7 +31,7 @@ def _signed_in(browser, url: str):
     return ctx, page
 
 
-def test_the_page_breaks_holds_shows_the_tof_and_marks_stale(browser, served, bus_pair_configs):
+def test_the_page_breaks_holds_shows_the_tof_and_marks_stale(browser, served, bus_pair_configs, artifacts):
     ctx, page = _signed_in(browser, served.url)
     try:
         page.click("#clear-trail")
@@ -63,8 +63,11 @@ def test_the_page_breaks_holds_shows_the_tof_and_marks_stale(browser, served, bu
             "document.getElementById('state-stale').textContent.startsWith('stale: no new state for')",
             timeout=10_000,
         )
-        assert "stale" in page.get_attribute("#state-panel", "class")
+        assert "stale" in page.get_attribute("#state-panel", "class") and "stale" in page.get_attribute(
+            "#lock", "class"
+        )
         page.wait_for_function("document.getElementById('tof-row').classList.contains('stale')", timeout=10_000)
+        page.screenshot(path=str(artifacts / "dashboard-stale-after-reset.png"), full_page=True)
         assert page.is_visible("#stale") and page.text_content("#v-depth") == "140.00"
         # A state again: no longer stale; its last frame 1.5 s old: no lock, said so.
         st = make_state(t0 + 800 * 5 * MS, tip_m=(0.25, 0.2, 0.3))
