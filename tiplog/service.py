@@ -37,6 +37,9 @@ SUPERVISED_ENV = "TIPLOG_SUPERVISED"
 SUPERVISOR_PID_ENV = "TIPLOG_SUPERVISOR_PID"
 PR_SET_PDEATHSIG = 1
 REPARENT_CHECK_S = 0.5
+# Set by `tiplog up` on a service's spare: it prepares (imports, compiled code), then waits for
+# one line on its stdin before it opens the bus; end of file or a stop signal ends it.
+STANDBY_ENV = "TIPLOG_STANDBY"
 log = logging.getLogger("tiplog.service")
 
 
@@ -151,10 +154,13 @@ def run_service(
     description: str | None = None,
     extra_arguments: Callable[[argparse.ArgumentParser], None] | None = None,
     check: Callable[[C], None] | None = None,
+    prepare: Callable[[C], None] | None = None,
 ) -> int:
     """Parse arguments, load configuration, open the bus and run `body` until a signal.
     `check` raises ConfigError for what the model alone cannot validate (a file the
-    configuration names, a combination of fields): one line, exit 2, before the bus opens."""
+    configuration names, a combination of fields): one line, exit 2, before the bus opens.
+    As a spare (`STANDBY_ENV`), the service runs `prepare` (what takes time and needs no bus:
+    imports, loading compiled code), then waits to be called up (`standby`) before the bus opens."""
     parser = argparse.ArgumentParser(prog=f"python -m services.{name}", description=description)
     add_config_arguments(parser)
     if extra_arguments:
@@ -190,6 +196,11 @@ def run_service(
         if supervisor_pid.isdigit():
             watch_supervisor(int(supervisor_pid), stop, slog)
     try:
+        if os.environ.get(STANDBY_ENV) == "1":
+            if prepare is not None:
+                prepare(config)
+            if not standby(stop, slog):
+                return 0
         try:
             bus = Bus(config.bus, service=name, stop=stop)
         except ConnectionError as e:
@@ -204,6 +215,32 @@ def run_service(
             signal.signal(s, h)
     slog.info("stopped%s", f" on {signal.Signals(received[0]).name}" if received else "")
     return 0
+
+
+def standby(stop: threading.Event, slog: logging.Logger) -> bool:
+    """A spare's wait: True once a line comes on stdin (called up), False on a stop signal or
+    end of file (its supervisor gone). Stdin, not a signal: a line written before the spare is
+    ready waits in the pipe, where a signal would be lost or kill it."""
+    called = threading.Event()
+    woke = threading.Event()
+
+    def read() -> None:
+        try:
+            line = sys.stdin.buffer.readline()
+        except (OSError, ValueError):
+            line = b""
+        if line.strip():
+            called.set()
+        woke.set()
+
+    threading.Thread(target=read, name="standby", daemon=True).start()
+    threading.Thread(target=lambda: (stop.wait(), woke.set()), name="standby-stop", daemon=True).start()
+    slog.info("ready, standing by")
+    woke.wait()
+    if called.is_set() and not stop.is_set():
+        slog.info("called up")
+        return True
+    return False
 
 
 def idle_until_stopped(ctx: ServiceContext) -> None:

@@ -12,6 +12,11 @@ again: FAILED, with the last error line it wrote, on the terminal and in the sta
 whose process writes its stderr to a pipe has each line passed on to ours as it comes, and its
 last lines kept for that.
 
+Spares: a child with `spawn_spare` has a second process started once it has run
+`spare_after_s`, which prepares (imports, compiled kernels) and waits on its stdin without
+joining the bus (`tiplog.service.standby`); when the child dies, its restart calls the spare up
+(one line on its stdin) instead of starting a process from nothing, and a new spare follows.
+
 Nothing unrecorded: while `recording()` says no recorder records, every status with an event
 is also kept (the last `max_held`); once a recorder records again they are published once
 more, `replayed` and with their original stamps, so that its file holds them.
@@ -48,7 +53,11 @@ class Child:
     stop_last: bool = False  # stopped only once the others have exited (the recorder: what they
     # publish as they stop, such as fusion's last settled second, is still recorded)
     first_delay_s: float | None = None  # its first restart's delay (None: the supervisor's)
+    spawn_spare: Callable[[], subprocess.Popen] | None = None  # a standby process (stdin a pipe)
     proc: subprocess.Popen | None = None
+    spare: subprocess.Popen | None = None
+    spare_lines: deque = field(default_factory=lambda: deque(maxlen=50))
+    spare_relay: threading.Thread | None = None
     state: int = R.SERVICE_RUN_STATE_WAITING
     restarts: int = 0
     quick_deaths: int = 0
@@ -111,6 +120,7 @@ class Supervisor:
     give_up_after: int = 5  # failed starts in a row
     start_grace_s: float = 30.0  # an error exit sooner than this after the start is a failed start
     err_out: object = None  # where children's piped stderr goes (default: our stderr)
+    spare_after_s: float = 5.0  # a child's spare starts once it has run this long (not with the others)
     _last_report: float = field(default=-1e9, init=False)
     _err_lock: threading.Lock = field(default_factory=threading.Lock, init=False)
     held: deque = field(default_factory=deque, init=False)  # statuses no recorder has recorded
@@ -125,6 +135,8 @@ class Supervisor:
                 rc = c.proc.poll()
                 if rc is not None:
                     self._exited(c, rc, now)
+                elif c.spawn_spare is not None and now - c.started_at >= self.spare_after_s:
+                    self._keep_spare(c)
             elif c.state == R.SERVICE_RUN_STATE_RESTARTING and now >= c.restart_at:
                 c.restarts += 1
                 self._start(c, now, f"restarted (restart {c.restarts})")
@@ -158,15 +170,50 @@ class Supervisor:
         """The children given up on."""
         return [c for c in self.children if c.state == R.SERVICE_RUN_STATE_FAILED]
 
+    def _relay_of(self, name: str, proc: subprocess.Popen, keep: deque) -> threading.Thread | None:
+        if proc.stderr is None:
+            return None
+        out = self.err_out if self.err_out is not None else sys.stderr.buffer
+        t = threading.Thread(
+            target=_relay, args=(proc.stderr, out, self._err_lock, keep), name=f"stderr-{name}", daemon=True
+        )
+        t.start()
+        return t
+
+    def _keep_spare(self, c: Child) -> None:
+        """Start `c`'s spare when it has none (or its spare died)."""
+        if c.spare is not None and c.spare.poll() is None:
+            return
+        if c.spare is not None:
+            log.warning("%s's spare exited with %s; starting another", c.name, c.spare.returncode)
+        assert c.spawn_spare is not None
+        c.spare = c.spawn_spare()
+        c.spare_lines = deque(maxlen=50)
+        c.spare_relay = self._relay_of(f"{c.name}-spare", c.spare, c.spare_lines)
+
+    def _call_spare(self, c: Child) -> subprocess.Popen | None:
+        """`c`'s spare, called up (one line on its stdin), or None when it has none alive."""
+        spare, c.spare = c.spare, None
+        if spare is None or spare.poll() is not None or spare.stdin is None:
+            return None
+        try:
+            spare.stdin.write(b"up\n")
+            spare.stdin.close()
+        except OSError:  # it died just now
+            return None
+        c.lines, c.relay = c.spare_lines, c.spare_relay
+        c.spare_relay = None
+        return spare
+
     def _start(self, c: Child, now: float, what: str) -> None:
-        c.proc = c.spawn()
-        c.lines.clear()
-        if c.proc.stderr is not None:
-            out = self.err_out if self.err_out is not None else sys.stderr.buffer
-            c.relay = threading.Thread(
-                target=_relay, args=(c.proc.stderr, out, self._err_lock, c.lines), name=f"stderr-{c.name}", daemon=True
-            )
-            c.relay.start()
+        spare = self._call_spare(c) if c.restarts > 0 else None
+        if spare is not None:
+            c.proc = spare
+            what += ", its spare called up"
+        else:
+            c.proc = c.spawn()
+            c.lines.clear()
+            c.relay = self._relay_of(c.name, c.proc, c.lines)
         c.state = R.SERVICE_RUN_STATE_RUNNING
         c.started_at = now
         log.info("%s %s (pid %d)", c.name, what, c.proc.pid)
@@ -240,6 +287,7 @@ class Supervisor:
     def stop(self, grace_s: float = 5.0) -> None:
         """SIGTERM every running service, SIGKILL what is left after `grace_s`: first those
         not marked `stop_last`, then, once they have exited, the rest."""
+        self._stop_spares(grace_s)
         first = [c for c in self.children if not c.stop_last]
         last = [c for c in self.children if c.stop_last]
         self._stop_group(first, grace_s)
@@ -249,6 +297,19 @@ class Supervisor:
         self._stop_group(last, grace_s)
         self._mark_stopped(last)
         self.report("stopped")
+
+    def _stop_spares(self, grace_s: float) -> None:
+        spares = [c.spare for c in self.children if c.spare is not None and c.spare.poll() is None]
+        for c in self.children:
+            c.spare = None
+        for p in spares:
+            p.send_signal(signal.SIGTERM)
+        for p in spares:
+            try:
+                p.wait(timeout=grace_s)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
 
     @staticmethod
     def _mark_stopped(children: list[Child]) -> None:

@@ -29,7 +29,7 @@ from tiplog.calibration import Calibration, CalibrationError
 from tiplog.cliargs import endpoint
 from tiplog.config import load_section
 from tiplog.holders import device_reader, pty_emulator, tcp_listener
-from tiplog.service import SUPERVISED_ENV, SUPERVISOR_PID_ENV
+from tiplog.service import STANDBY_ENV, SUPERVISED_ENV, SUPERVISOR_PID_ENV
 from tiplog.supervisor import Child, Supervisor
 from tiplog.up_config import SERVICES, check_system_config, config_model
 from tiplog.userio import UserError, input_file
@@ -66,6 +66,9 @@ STOP_LAST = ("recorder",)  # records what the others publish as they stop
 # Restarted at once the first time: while the recorder is down nothing is recorded, while the
 # bench is down no device stream flows, while fusion is down the display is blind.
 FIRST_DELAY_S = {"recorder": 0.05, "bench": 0.05, "fusion": 0.05}
+# Kept ready (imports and compiled kernels loaded, off the bus) to take over at once when the
+# running one dies: fusion's start-up is over a second of imports and kernel loading.
+SPARES = ("fusion",)
 
 
 def _config_fields(name: str) -> set[str]:
@@ -144,16 +147,17 @@ def held_resources(names: list[str], listen: str, config: str | None) -> list[st
     return held
 
 
-def _spawn(name: str, endpoint: str, config: str | None, sets: list[str] = ()) -> subprocess.Popen:
+def _spawn(name: str, endpoint: str, config: str | None, sets: list[str] = (), spare: bool = False) -> subprocess.Popen:
     cmd = [sys.executable, "-m", f"services.{name}", "--connect", endpoint]
     if config:
         cmd += ["--config", config]
     for s in sets:
         cmd += ["--set", s]
     # stderr through the supervisor, which passes every line on and keeps the last error line.
-    return subprocess.Popen(
-        cmd, env={**os.environ, SUPERVISED_ENV: "1", SUPERVISOR_PID_ENV: str(os.getpid())}, stderr=subprocess.PIPE
-    )
+    env = {**os.environ, SUPERVISED_ENV: "1", SUPERVISOR_PID_ENV: str(os.getpid())}
+    if spare:  # waits for a line on stdin (tiplog.service.standby)
+        return subprocess.Popen(cmd, env={**env, STANDBY_ENV: "1"}, stderr=subprocess.PIPE, stdin=subprocess.PIPE)
+    return subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE)
 
 
 class RecorderWatch:
@@ -238,6 +242,9 @@ def run(args: argparse.Namespace) -> int:
                 functools.partial(_spawn, n, args.listen, args.config, sets[n]),
                 stop_last=n in STOP_LAST,
                 first_delay_s=FIRST_DELAY_S.get(n),
+                spawn_spare=functools.partial(_spawn, n, args.listen, args.config, sets[n], True)
+                if n in SPARES
+                else None,
             )
             for n in names
         ]

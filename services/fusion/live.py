@@ -63,7 +63,7 @@ class LiveFusion:
         warm: bool = True,
     ):
         if warm:
-            _warm(calibration, params, sensors)
+            warm_kernels(calibration, params, sensors)
         self.runner = FusionRunner(calibration, params, sensors, output="both")
         self._clock = clock
         self._poll_s = poll_s
@@ -253,7 +253,7 @@ class LiveFusion:
         )
 
 
-def _warm(calibration: Calibration, params: Params, sensors: frozenset[str]) -> None:
+def warm_kernels(calibration: Calibration, params: Params, sensors: frozenset[str]) -> None:
     """The compiled kernels loaded before the first subscription (`services.fusion.warmup`);
     a calibration it cannot build a session from costs only the first samples' delay."""
     try:

@@ -216,3 +216,80 @@ def test_a_service_failing_later_than_its_start_is_not_given_up_on():
         sup.poll()
         clock.t = max(clock.t, c.restart_at)
     assert c.state == R.SERVICE_RUN_STATE_RESTARTING and c.failed_starts == 0
+
+
+SPARE = (
+    "import sys, time; line = sys.stdin.readline()\n"
+    "if not line.strip(): raise SystemExit(7)\n"  # its supervisor gone: never joins
+    "print('called', flush=True); time.sleep(60)"
+)
+
+
+def test_a_dead_service_is_replaced_by_its_spare_and_a_new_spare_follows(tmp_path):
+    clock = Clock()
+    outs = []
+
+    def spare():
+        out = open(tmp_path / f"spare{len(outs)}.out", "w")  # noqa: SIM115 - closed below
+        outs.append(out)
+        return subprocess.Popen([sys.executable, "-c", SPARE], stdin=subprocess.PIPE, stdout=out)
+
+    c = Child("fusion", sleeping, first_delay_s=0.05, spawn_spare=spare)
+    sup = Supervisor([c], clock=clock, spare_after_s=5.0)
+    try:
+        sup.poll()
+        first = c.proc
+        assert c.spare is None  # not while the system starts
+        clock.t += 5.0
+        sup.poll()
+        ready = c.spare
+        assert ready is not None and ready.poll() is None
+        first.kill()
+        first.wait(30)
+        sup.poll()  # notices the death
+        clock.t += 0.05
+        sup.poll()  # the restart calls the spare up
+        assert c.proc is ready and c.spare is None and c.restarts == 1
+        _wait_for(lambda: (tmp_path / "spare0.out").read_text() == "called\n")
+        clock.t += 5.0
+        sup.poll()
+        assert c.spare is not None and c.spare is not ready  # the next spare
+        second_spare = c.spare
+    finally:
+        sup.stop(grace_s=5.0)
+        for out in outs:
+            out.close()
+    assert ready.poll() is not None and second_spare.poll() is not None  # stop ends spares too
+    assert (tmp_path / "spare1.out").read_text() == ""  # never called up
+
+
+def test_a_restart_without_a_live_spare_starts_afresh():
+    clock = Clock()
+    spares = []
+
+    def spare():
+        p = subprocess.Popen([sys.executable, "-c", "raise SystemExit(1)"], stdin=subprocess.PIPE)
+        spares.append(p)
+        return p
+
+    c = Child("fusion", sleeping, first_delay_s=0.05, spawn_spare=spare)
+    sup = Supervisor([c], clock=clock, spare_after_s=0.0)
+    try:
+        sup.poll()
+        sup.poll()  # its spare starts, and dies
+        spares[0].wait(30)
+        c.proc.kill()
+        c.proc.wait(30)
+        sup.poll()
+        clock.t += 0.05
+        sup.poll()
+        assert c.proc is not None and c.proc not in spares and c.proc.poll() is None
+    finally:
+        sup.stop(grace_s=5.0)
+
+
+def _wait_for(pred, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.02)

@@ -128,14 +128,14 @@ def test_the_command_fills_the_cache_or_says_why_not(tmp_path):
 
 def test_a_calibration_it_cannot_use_only_costs_the_warm_up(caplog):
     """The live service still starts (the kernels then load with the first samples)."""
-    from services.fusion.live import _warm
+    from services.fusion.live import warm_kernels
 
     d = _bench_calibration("teleop", 0).to_dict()
     d["shaft_radius_m"] = 5.0  # the camera inside the shaft: no frame to build
     with caplog.at_level("INFO", logger="tiplog.fusion"):
-        _warm(Calibration.from_dict(d), Params(), frozenset({"imu", "tof", "vision"}))
+        warm_kernels(Calibration.from_dict(d), Params(), frozenset({"imu", "tof", "vision"}))
     assert "warm-up skipped (no pose of the shaft" in caplog.text
     caplog.clear()
     with caplog.at_level("INFO", logger="tiplog.fusion"):
-        _warm(_bench_calibration("teleop", 0), Params(), frozenset({"imu", "tof", "vision"}))
+        warm_kernels(_bench_calibration("teleop", 0), Params(), frozenset({"imu", "tof", "vision"}))
     assert "filter kernels ready in" in caplog.text
