@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.signal import fftconvolve
+from scipy.ndimage import gaussian_filter1d
 
 from services.fusion.metrics import kinematics as kin
 from services.fusion.metrics.smoothness import ldlj, sparc
@@ -54,15 +54,22 @@ class MetricsParams:
     movement_merge_s: float = 0.2  # ... runs closer than this joined into one
     min_segment_s: float = 2.0  # shorter segments are refused: the filters and SPARC need this much
     draws: int = 200  # trajectories drawn from the estimate's uncertainty per segment
-    correlation_s: float = 1.5  # correlation time of the drawn errors (1/e of the autocorrelation)
-    sigma_scale: float = 0.45  # drawn errors' SD over the stream's sigma (see docs/metrics.md)
+    error_corner_hz: float = 0.4  # corner of the drawn errors' spectrum (see `correlated_noise`)
+    envelope_s: float = 1.0  # the stream's sigma smoothed over this (see `sigma_envelope`)
+    sigma_scale: float = 0.33  # drawn errors' SD over the stream's smoothed sigma (see docs/metrics.md)
     level: float = 0.95  # interval level
 
     def __post_init__(self) -> None:
         if not 0.0 < self.path_cutoff_hz < self.rate_hz / 2 or not 0.0 < self.speed_cutoff_hz < self.rate_hz / 2:
             raise ValueError("metrics: the cut-off frequencies must lie between 0 and half the grid rate")
-        if self.draws < 0 or not 0.0 < self.level < 1.0 or self.correlation_s <= 0.0 or self.sigma_scale <= 0.0:
-            raise ValueError("metrics: draws >= 0, 0 < level < 1, correlation_s > 0 and sigma_scale > 0 are required")
+        if (
+            self.draws < 0
+            or not 0.0 < self.level < 1.0
+            or min(self.error_corner_hz, self.envelope_s, self.sigma_scale) <= 0
+        ):
+            raise ValueError(
+                "metrics: draws >= 0, 0 < level < 1, and error_corner_hz, envelope_s and sigma_scale > 0 are required"
+            )
 
 
 @dataclass(frozen=True)
@@ -162,36 +169,59 @@ def segment_metrics(m: Motion, params: MetricsParams) -> dict[str, float]:
     }
 
 
-def correlated_noise(rng: np.random.Generator, n: int, dims: int, rate_hz: float, correlation_s: float) -> np.ndarray:
-    """Stationary Gaussian noise (n, dims), unit variance per column, smooth in time: white noise
-    convolved with a Gaussian kernel whose output's autocorrelation falls to 1/e at correlation_s."""
-    sd = max(correlation_s * rate_hz / 2.0, 1e-6)  # autocorrelation exp(-lag^2 / (4 sd^2))
-    half = int(np.ceil(4 * sd))
-    k = np.exp(-0.5 * (np.arange(-half, half + 1) / sd) ** 2)
-    k /= np.sqrt(np.sum(k**2))
-    white = rng.standard_normal((n + 2 * half, dims))
-    return fftconvolve(white, k[:, None], mode="valid", axes=0)
+def correlated_noise(rng: np.random.Generator, n: int, dims: int, rate_hz: float, corner_hz: float) -> np.ndarray:
+    """Stationary Gaussian noise (n, dims), unit variance per column, of a second-order Gauss-Markov
+    process: power spectrum proportional to 1 / (1 + (f / corner_hz)^2)^2 (two first-order lags in
+    series; autocorrelation (1 + |lag| / T) exp(-|lag| / T), T = 1 / (2 pi corner_hz)). Made by
+    shaping white noise in the frequency domain over n samples plus ten time constants of padding,
+    so the start and end of the result are uncorrelated as in a stationary process."""
+    pad = int(np.ceil(10.0 * rate_hz / (2.0 * np.pi * corner_hz)))
+    m = n + pad
+    f = np.fft.rfftfreq(m, 1.0 / rate_hz)
+    gain = 1.0 / (1.0 + (f / corner_hz) ** 2)  # amplitude: the square root of the spectrum
+    # the variance of the shaped (circular) noise: (1/m) sum over all m bins of gain^2
+    full = np.concatenate([gain, gain[1 : (m + 1) // 2][::-1]])
+    gain = gain / np.sqrt(np.sum(full**2) / m)
+    white = rng.standard_normal((m, dims))
+    return np.fft.irfft(np.fft.rfft(white, axis=0) * gain[:, None], n=m, axis=0)[:n]
+
+
+def sigma_envelope(sigma: np.ndarray, rate_hz: float, envelope_s: float) -> np.ndarray:
+    """The stream's sigmas (n,) or (n, k) smoothed in time: the square root of sigma^2 averaged with a
+    Gaussian window of SD envelope_s. A filter's sigma rises between measurements and drops at each
+    one; multiplying the drawn noise by it unsmoothed would put that sawtooth's frequencies into the
+    drawn errors (and into the jerk), which the estimate's own errors do not have."""
+    return np.sqrt(gaussian_filter1d(np.asarray(sigma, dtype=float) ** 2, envelope_s * rate_hz, axis=0, mode="nearest"))
 
 
 def drawn_motion(m: Motion, rng: np.random.Generator, params: MetricsParams) -> Motion:
-    """One trajectory drawn about the estimate: each tip axis and the roll offset by its own sigma
-    times `correlated_noise` (axes drawn independently: the estimate carries no cross-covariance)."""
-    n = len(m.t_s)
-    z = correlated_noise(rng, n, 4, params.rate_hz, params.correlation_s)
+    """One trajectory drawn about the estimate: each tip axis and the roll offset by
+    `params.sigma_scale` times its `sigma_envelope` times `correlated_noise` (axes drawn
+    independently: the estimate carries no cross-covariance)."""
+    n, rate = len(m.t_s), params.rate_hz
+    z = correlated_noise(rng, n, 4, rate, params.error_corner_hz)
     k = params.sigma_scale
-    p = m.p_tip_base_m + (k * m.tip_sigma_m * z[:, :3] if m.tip_sigma_m is not None else 0.0)
-    roll = m.roll_rad + (k * m.roll_sigma_rad * z[:, 3] if m.roll_sigma_rad is not None else 0.0)
+    p, roll = m.p_tip_base_m, m.roll_rad
+    if m.tip_sigma_m is not None:
+        p = p + k * sigma_envelope(m.tip_sigma_m, rate, params.envelope_s) * z[:, :3]
+    if m.roll_sigma_rad is not None:
+        roll = roll + k * sigma_envelope(m.roll_sigma_rad, rate, params.envelope_s) * z[:, 3]
     return replace(m, p_tip_base_m=p, roll_rad=roll)
 
 
 def draw_intervals(
     m: Motion, point: dict[str, float], params: MetricsParams, seed: int = 0
 ) -> dict[str, tuple[float, float]]:
-    """{metric: (low, high)}: the basic (reflected) interval from `params.draws` trajectories drawn
-    about the estimate. Drawn errors add to the estimate's own, so a metric that noise inflates
-    (a path length) is higher in the draws than at the estimate; reflecting the draws' quantiles
-    about the estimate's value (2 x - q_high, 2 x - q_low) puts the interval where the truth lies
-    if the estimate's error is like the drawn ones. Empty without draws or sigmas."""
+    """{metric: (low, high)}: the spread of the metric over `params.draws` trajectories drawn about
+    the estimate, centred on the estimate's value: with q_lo, q_mid, q_hi the draws' lower, middle
+    and upper quantiles and x the estimate's value, (x - q_mid + q_lo, x - q_mid + q_hi).
+
+    The draws give the spread, not a bias correction: drawn errors add to the estimate's own, so
+    the draws' shift from x (a longer path, a lower LDLJ) is what a second error adds, and
+    the estimate's actual shift from the truth depends on how its error lies along the motion,
+    which the stream's per-axis sigma does not carry (on the bench the draws' shift was several
+    times the estimate's own for LDLJ, the paths and the mean speed; docs/metrics.md). Empty
+    without draws or sigmas."""
     if params.draws == 0 or m.tip_sigma_m is None:
         return {}
     rng = np.random.default_rng(seed)
@@ -204,6 +234,6 @@ def draw_intervals(
         x = point.get(key, float("nan"))
         if key == "duration_s" or len(vals) == 0 or not np.isfinite(x):
             continue
-        q_lo, q_hi = np.quantile(vals, [a, 1.0 - a])
-        out[key] = (float(2 * x - q_hi), float(2 * x - q_lo))
+        q_lo, q_mid, q_hi = np.quantile(vals, [a, 0.5, 1.0 - a])
+        out[key] = (float(x - q_mid + q_lo), float(x - q_mid + q_hi))
     return out

@@ -12,8 +12,10 @@ from services.fusion.metrics.assess import (
     Motion,
     correlated_noise,
     draw_intervals,
+    drawn_motion,
     resample,
     segment_metrics,
+    sigma_envelope,
 )
 from services.fusion.metrics.smoothness import dimensionless_jerk, ldlj, sparc
 
@@ -196,14 +198,50 @@ def test_a_segment_shorter_than_the_metrics_need_is_refused():
         segment_metrics(_motion(_pivot_and_stop(100.0)[:150], 100.0), MetricsParams())
 
 
-def test_correlated_noise_has_unit_variance_and_the_stated_correlation_time():
-    z = correlated_noise(np.random.default_rng(3), 200_000, 1, 100.0, 1.0)[:, 0]
+def test_correlated_noise_is_the_stated_second_order_gauss_markov_process():
+    corner_hz = 0.4
+    z = correlated_noise(np.random.default_rng(3), 200_000, 1, 100.0, corner_hz)[:, 0]
     assert z.var() == pytest.approx(1.0, rel=0.05)
-    lag = 100  # 1 s: the autocorrelation is 1/e there
-    assert np.mean(z[:-lag] * z[lag:]) / z.var() == pytest.approx(np.exp(-1.0), abs=0.05)
+    tc = 1.0 / (2 * np.pi * corner_hz)  # autocorrelation (1 + lag / tc) exp(-lag / tc)
+    for lag_s in (0.5 * tc, tc, 2.0 * tc):
+        lag = int(round(lag_s * 100.0))
+        want = (1 + lag / 100.0 / tc) * np.exp(-lag / 100.0 / tc)
+        assert np.mean(z[:-lag] * z[lag:]) / z.var() == pytest.approx(want, abs=0.03)
 
 
-def test_intervals_contain_the_value_for_an_exact_estimate_and_widen_with_sigma():
+def test_sigma_envelope_keeps_the_level_and_drops_the_sawtooth():
+    t = np.arange(3000) / 100.0
+    saw = 1e-3 + 4e-3 * ((t * 5.0) % 1.0)  # a filter's sigma between 5 Hz fixes: 1 to 5 mm
+    env = sigma_envelope(saw, 100.0, 1.0)
+    assert np.allclose(env[300:-300], np.sqrt(np.mean(saw**2)), rtol=0.01)
+    step = np.where(t < 15.0, 1e-3, 3e-3)  # a slow change in the sigma is kept
+    env = sigma_envelope(step, 100.0, 1.0)
+    assert env[500] == pytest.approx(1e-3, rel=0.01) and env[2500] == pytest.approx(3e-3, rel=0.01)
+
+
+def test_drawn_errors_carry_no_jerk_from_the_sigmas_sawtooth():
+    # the drawn errors must be as jerky as the stated error model, whatever the sigma does between a
+    # filter's measurements: drawn from the raw sawtooth, their jerk was thousands of times that of a
+    # constant sigma at the same RMS, and LDLJ's interval lay wholly above the truth on the bench
+    t = np.arange(3000) / 100.0
+    saw = 1e-3 + 4e-3 * ((t * 5.0) % 1.0)
+    params = MetricsParams()
+
+    def jerk(sigma: np.ndarray) -> float:
+        p = np.tile(RCM + [0.0, 0.0, -0.14], (len(t), 1))
+        m = Motion(t, p, np.zeros(len(t)), RCM, np.stack([sigma] * 3, 1), np.full(len(t), 1e-3))
+        rng = np.random.default_rng(0)
+        out = []
+        for _ in range(20):
+            e = kin.lowpass(drawn_motion(m, rng, params).p_tip_base_m - p, 100.0, params.speed_cutoff_hz)
+            out.append(np.mean(np.diff(e, 3, axis=0) ** 2))
+        return float(np.mean(out))
+
+    ratio = jerk(saw) / jerk(np.full(len(t), np.sqrt(np.mean(saw**2))))
+    assert 0.8 < ratio < 1.25
+
+
+def test_intervals_shrink_to_the_value_with_the_sigma_and_widen_with_it():
     p = _pivot_and_stop(100.0)
     params = MetricsParams(draws=40)
     narrow_m = _motion(p, 100.0, sigma_m=1e-5)
@@ -211,14 +249,34 @@ def test_intervals_contain_the_value_for_an_exact_estimate_and_widen_with_sigma(
     point = segment_metrics(narrow_m, params)
     narrow = draw_intervals(narrow_m, point, params)
     wide = draw_intervals(wide_m, point, params)
+    # a 0.01 mm sigma: an interval of a few thousandths of a degree about the value
     lo, hi = narrow["angular_path_deg"]
-    assert lo <= point["angular_path_deg"] <= hi
-    assert hi - lo < 0.5
+    assert abs(lo - point["angular_path_deg"]) < 0.02 and abs(hi - point["angular_path_deg"]) < 0.02
     assert (
         wide["path_length_mm"][1] - wide["path_length_mm"][0]
         > narrow["path_length_mm"][1] - narrow["path_length_mm"][0]
     )
     assert draw_intervals(_motion(p, 100.0), point, params) == {}  # no sigmas: no interval
+
+
+def test_an_interval_is_the_draws_spread_about_the_value_not_their_shift():
+    # drawn errors lengthen the path whichever way they point; the interval is their spread placed
+    # about the estimate's value, not shifted by that lengthening (reflected about the value, the
+    # path's interval lay below it, and LDLJ's above, wherever the draws' shift exceeded their spread)
+    p = _pivot_and_stop(100.0)
+    params = MetricsParams(draws=40)
+    m = _motion(p, 100.0, sigma_m=3e-3)
+    point = segment_metrics(m, params)
+    bounds = draw_intervals(m, point, params)
+    rng = np.random.default_rng(0)
+    drawn = [segment_metrics(drawn_motion(m, rng, params), params) for _ in range(params.draws)]
+    for key in ("path_length_mm", "ldlj"):
+        vals = np.array([d[key] for d in drawn])
+        # the draws shift it by more than half their spread: reflected, the interval would miss the value
+        assert abs(np.median(vals) - point[key]) > 0.5 * (bounds[key][1] - bounds[key][0])
+        lo, hi = bounds[key]
+        assert lo < point[key] < hi
+        assert hi - lo == pytest.approx(np.quantile(vals, 0.975) - np.quantile(vals, 0.025), rel=1e-9)
 
 
 def test_resample_puts_two_streams_on_one_grid():
