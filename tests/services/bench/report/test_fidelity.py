@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from services.bench.report.fidelity import format_table, report
@@ -108,3 +109,20 @@ def test_cli_generate(tmp_path, capsys):
     rc = cli.main(["sim", "generate", "--scenario", "static", "--out", str(out), "--duration", "2", "--quiet"])
     assert rc == 0 and out.exists()
     assert "messages" in capsys.readouterr().out
+
+
+def test_independent_poses_counts_the_field_correlation():
+    """Poses far apart count one each; poses a few millimetres apart share the ToF's pose-locked
+    error (8 mm, 4 deg in the scenario) and count as about one."""
+    from types import SimpleNamespace
+
+    from services.bench.report.fidelity import _independent_poses
+
+    s = SimpleNamespace(meta={})
+    R = np.repeat(np.eye(3)[None], 10, 0)
+    far = np.arange(10)[:, None] * np.array([0.1, 0.0, 0.0])
+    near = np.arange(10)[:, None] * np.array([0.0005, 0.0, 0.0])
+    assert _independent_poses(s, R, far) == pytest.approx(10.0, rel=1e-6)
+    assert _independent_poses(s, R, near) < 1.5
+    s_long = SimpleNamespace(meta={"scenario": {"yaml": "tof: {pose_corr_m: 0.0002}"}})
+    assert _independent_poses(s_long, R, near) > 5.0
