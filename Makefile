@@ -13,7 +13,15 @@ $(STAMP): pyproject.toml
 	rm -f $(VENV)/.installed-*
 	touch $@
 
-install: $(STAMP)
+# Fusion's compiled kernels into numba's cache at install, not at the first start, where they
+# take 40-90 s on two cores (services/fusion/warmup.py). numba keys its cache on kernels.py's
+# modification time, and so does this target.
+KERNELS := $(VENV)/.kernels-ready
+$(KERNELS): $(STAMP) services/fusion/kernels.py
+	$(PY) -m services.fusion.warmup
+	touch $@
+
+install: $(STAMP) $(KERNELS)
 
 # Debian's Chromium for the browser tests (never a downloaded browser build).
 browser:
@@ -23,7 +31,7 @@ browser:
 compose:
 	bash scripts/install-debian.sh docker-compose docker-compose "the compose check"
 
-demo: $(STAMP)
+demo: $(STAMP) $(KERNELS)
 	$(VENV)/bin/tiplog up -c config/demo.yaml
 
 # The TypeScript MCAP reader (@mcap/core) for the recorder's interoperability test; pinned by
@@ -33,7 +41,7 @@ $(MCAP_NODE)/node_modules/.installed: $(MCAP_NODE)/package-lock.json
 	if command -v npm >/dev/null; then cd $(MCAP_NODE) && npm ci --no-audit --no-fund && touch node_modules/.installed; \
 	else echo "npm not found: the TypeScript MCAP reader test will be skipped"; fi
 
-test: $(STAMP) browser compose $(MCAP_NODE)/node_modules/.installed
+test: $(STAMP) $(KERNELS) browser compose $(MCAP_NODE)/node_modules/.installed
 	$(PY) -m pytest -q
 
 # Regenerate tiplog/v1 from proto/ (tests fail when the committed code differs).

@@ -31,7 +31,7 @@ from services.fusion.params import Params
 from services.fusion.publish import to_diagnostics, to_frame_transforms
 from services.fusion.runner import FusionRunner
 from services.fusion.scene import SCENE_PERIOD_NS, SceneTrail
-from services.fusion.warmup import warm_up
+from services.fusion.warmup import cold_start_line, warm_up
 from tiplog.bus import Bus, SampleInfo
 from tiplog.calibration import Calibration
 from tiplog.clock import now_ns
@@ -255,13 +255,17 @@ class LiveFusion:
 
 def warm_kernels(calibration: Calibration, params: Params, sensors: frozenset[str]) -> None:
     """The compiled kernels loaded before the first subscription (`services.fusion.warmup`);
-    a calibration it cannot build a session from costs only the first samples' delay."""
+    a calibration it cannot build a session from costs only the first samples' delay. With no
+    compiled cache (a fresh install) that takes a minute: one warning line says so first."""
+    cold = cold_start_line()
+    if cold:
+        log.warning("%s", cold)
     try:
         diag = warm_up(calibration, params, sensors)
     except Exception as e:  # never a reason not to start
         log.warning("filter warm-up skipped (%s): the first samples will wait for the compiled kernels", e)
         return
-    log.info("filter kernels ready in %.1f s", diag["warm_up_s"])
+    log.info("filter kernels %s in %.1f s", "compiled" if cold else "ready", diag["warm_up_s"])
 
 
 def _finite(s: Any) -> bool:

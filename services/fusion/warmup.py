@@ -15,9 +15,11 @@ vision frames that agree with the pose, each arriving after later gyro samples (
 path runs too) and every third with the junction hidden. It is built from the calibration
 alone and never touches the bus.
 
-`python -m services.fusion.warmup [CALIBRATION.yaml]` fills the cache ahead of time (the
-container image does so when it is built); without a file it uses the bench's nominal
-calibration: compiled code depends on types, not on the geometry.
+`python -m services.fusion.warmup [CALIBRATION.yaml]` fills the cache ahead of time (`make
+install`, and so `make demo` and `make test`, and the container image do so); without a file it
+uses the bench's nominal calibration: compiled code depends on types, not on the geometry. numba
+keys its cache on kernels.py's modification time, so a fresh clone or an edit of that file
+starts cold again: `kernel_cache` tells, so that the service can say why its first start waits.
 """
 
 from __future__ import annotations
@@ -147,6 +149,34 @@ def synthetic_inputs(
     return out
 
 
+def kernel_cache() -> tuple[bool | None, str]:
+    """(whether numba's cache holds compiled code of this kernels.py, the cache folder); (None,
+    "") when numba is absent or its cache cannot be read. Judged by `gyro_step`, which every
+    live sample goes through: the warm-up compiles it with the rest, and an edit of kernels.py
+    makes every kernel's entry stale at once."""
+    try:
+        from services.fusion import kernels
+
+        cache = kernels.gyro_step._cache
+        # numba's index is empty when missing or written for another version of the source
+        return bool(cache._cache_file._load_index()), str(cache._cache_path)
+    except Exception:  # numba absent, or its private cache layout changed: nothing to say
+        return None, ""
+
+
+def cold_start_line() -> str | None:
+    """The line to show before a warm-up that will compile (None when the cache is warm or
+    cannot be read)."""
+    cached, where = kernel_cache()
+    if cached is not False:
+        return None
+    return (
+        f"compiling the filter's kernels: none cached in {where} for this version (first start after an "
+        "install or an update); 40-90 s on two busy cores, once, and no estimate until then "
+        "(`python -m services.fusion.warmup` does it ahead, as `make install` does)"
+    )
+
+
 def warm_up(calib: Calibration, params: Params | None = None, sensors: frozenset[str] = SENSORS) -> dict:
     """Run a throwaway runner (both outputs, as live) over `synthetic_inputs`; returns its
     diagnostics with `warm_up_s`, the time it took."""
@@ -176,11 +206,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             from services.bench.simulation import as_calibrated_constants
 
             calib = Calibration.from_dict(as_calibrated_constants(load_scenario("teleop"), 0).to_dict(), "bench")
+        line = cold_start_line()
+        if line:
+            print(line, flush=True)
         diag = warm_up(calib)
     except (CalibrationError, ValueError) as e:
         print(f"warmup: {e}", file=sys.stderr)
         return 2
-    print(f"fusion kernels ready in {diag['warm_up_s']:.1f} s")
+    print(f"fusion kernels {'compiled' if line else 'ready'} in {diag['warm_up_s']:.1f} s")
     return 0
 
 

@@ -5,6 +5,7 @@ every compiled kernel that a real bench session then uses, in a fresh process.""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -123,7 +124,23 @@ def test_the_command_fills_the_cache_or_says_why_not(tmp_path):
         [sys.executable, "-m", "services.fusion.warmup"], cwd=ROOT, capture_output=True, text=True, timeout=240
     )
     assert ok.returncode == 0, ok.stderr
-    assert "fusion kernels ready in" in ok.stdout
+    assert "fusion kernels ready in" in ok.stdout or "fusion kernels compiled in" in ok.stdout
+
+
+def test_a_start_with_no_compiled_cache_says_so_first(tmp_path):
+    """An empty cache folder (a fresh install): the service's line says that it compiles, where
+    the cache is and how long it takes; the cache in use here (filled by the warm-up) says nothing."""
+    pytest.importorskip("numba")
+    script = "from services.fusion.warmup import kernel_cache, cold_start_line; print(kernel_cache()[0]); print(cold_start_line())"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    cached, line = out.stdout.strip().splitlines()
+    assert cached == "False"
+    assert line.startswith("compiling the filter's kernels") and str(tmp_path) in line and "s on two" in line
+    from services.fusion.warmup import cold_start_line, kernel_cache, warm_up
+
+    warm_up(_bench_calibration("teleop", 0))
+    assert kernel_cache()[0] is True and cold_start_line() is None
 
 
 def test_a_calibration_it_cannot_use_only_costs_the_warm_up(caplog):
