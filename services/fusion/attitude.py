@@ -17,7 +17,9 @@ estimation with bias estimation and magnetic disturbance rejection", Information
   bias clip is a slow turn, not rest.
 
 Unlike VQF, every step uses its own time step from the sample stamps (arbitrary and jittering
-rates, dropped rows), the gyroscope is integrated with the trapezoid rule, a gap longer than
+rates, dropped rows); as in VQF, a gyroscope sample is the mean rate over the step that ends at
+its stamp (what a MEMS gyroscope's decimation filter puts out), so the step turns by that
+sample, not by the mean of it and the previous one, which would lag half a step; a gap longer than
 `max_gap_s` restarts the inclination from the next accelerometer sample, and a missing (NaN)
 gyroscope or accelerometer value skips that sensor for the row, and a gyroscope that lags its
 stamps (`gyr_delay_s`, a sensor's internal filtering) has its integrated orientation carried
@@ -226,11 +228,11 @@ def _run(
                 st[_ACC_INIT] = 0.0
                 st[_REST] = 0.0
             elif g_ok or st[_GPREV] == st[_GPREV]:
-                # trapezoid between the previous and this gyro sample (hold one when missing)
+                # the sample is the mean rate over the step that ends at its stamp (a missing
+                # one: the previous sample held)
                 for k in range(3):
-                    gp = st[_GPREV + k] if st[_GPREV] == st[_GPREV] else gyr[i, k]
-                    gc = gyr[i, k] if g_ok else gp
-                    e[k] = (0.5 * (gp + gc) - st[_BIAS + k]) * dt
+                    gc = gyr[i, k] if g_ok else st[_GPREV + k]
+                    e[k] = (gc - st[_BIAS + k]) * dt
                 ang = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
                 if ang > 1e-15:
                     s = math.sin(0.5 * ang) / ang

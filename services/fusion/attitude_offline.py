@@ -29,17 +29,18 @@ from services.fusion.attitude import AttitudeFilter, Params, _jit, _lp, _lp_coef
 
 @_jit
 def _integrate(t_s: np.ndarray, rate_radps: np.ndarray, acc: np.ndarray, q_out: np.ndarray, acc_i: np.ndarray) -> None:
-    """Trapezoid strapdown of rate (N, 3) [rad/s, bias removed, no NaN] from identity -> q_out
-    (N, 4); acc (N, 3) rotated into that frame -> acc_i (N, 3) (NaN stays NaN)."""
+    """Strapdown of rate (N, 3) [rad/s, bias removed, no NaN] from identity -> q_out (N, 4),
+    each row's sample the mean rate over the step that ends at its stamp (as online); acc
+    (N, 3) rotated into that frame -> acc_i (N, 3) (NaN stays NaN)."""
     q = np.array([1.0, 0.0, 0.0, 0.0])
     dq = np.empty(4)
     R = np.empty(9)
     for i in range(t_s.shape[0]):
         if i > 0:
             dt = t_s[i] - t_s[i - 1]
-            ex = 0.5 * (rate_radps[i - 1, 0] + rate_radps[i, 0]) * dt
-            ey = 0.5 * (rate_radps[i - 1, 1] + rate_radps[i, 1]) * dt
-            ez = 0.5 * (rate_radps[i - 1, 2] + rate_radps[i, 2]) * dt
+            ex = rate_radps[i, 0] * dt
+            ey = rate_radps[i, 1] * dt
+            ez = rate_radps[i, 2] * dt
             ang = math.sqrt(ex * ex + ey * ey + ez * ez)
             if ang > 1e-15:
                 s = math.sin(0.5 * ang) / ang
@@ -53,7 +54,8 @@ def _integrate(t_s: np.ndarray, rate_radps: np.ndarray, acc: np.ndarray, q_out: 
 
 
 def strapdown(t_s: np.ndarray, rate_radps: np.ndarray, acc_mps2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Trapezoid strapdown of rate (N, 3) [rad/s, no NaN] from identity over stamps t_s (N,) [s]:
+    """Strapdown of rate (N, 3) [rad/s, no NaN, each the mean over the step that ends at its
+    stamp] from identity over stamps t_s (N,) [s]:
     (the sensor-to-start-frame quaternions (N, 4) w x y z, acc (N, 3) rotated into that frame)."""
     q = np.empty((t_s.shape[0], 4))
     acc_fixed = np.empty((t_s.shape[0], 3))

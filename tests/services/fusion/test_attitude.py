@@ -44,9 +44,21 @@ def _sample(truth, rate_hz: float, seed: int, bias_dps=(0.5, -0.3, 0.2), jitter=
     if drop:
         ts = ts[rng.random(ts.size) >= drop]
     idx = np.clip(np.searchsorted(t, ts), 0, t.size - 1)
-    gyr = w[idx] + np.radians(bias_dps) + rng.normal(0, np.radians(0.1), (ts.size, 3))
+    gyr = _mean_rate(truth, idx) + np.radians(bias_dps) + rng.normal(0, np.radians(0.1), (ts.size, 3))
     acc = f[idx] + rng.normal(0, 0.05, (ts.size, 3))
     return t[idx], gyr, acc, R[idx]
+
+
+def _mean_rate(truth, idx: np.ndarray) -> np.ndarray:
+    """Each sample the mean body rate over the step that ends at its stamp (the first: the rate
+    there), as a MEMS gyroscope's decimation filter gives it; idx indexes the fine grid."""
+    t, _, w, _ = truth
+    turned = np.vstack([np.zeros(3), np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t)[:, None], axis=0)])
+    out = w[idx].copy()
+    dt = t[idx[1:]] - t[idx[:-1]]
+    ok = dt > 0
+    out[1:][ok] = (turned[idx[1:]] - turned[idx[:-1]])[ok] / dt[ok, None]
+    return out
 
 
 def _incl_err_deg(q_wxyz: np.ndarray, R_true: np.ndarray) -> np.ndarray:
@@ -144,12 +156,30 @@ def test_as_good_as_vqf(truth):
     assert np.sqrt(np.mean(ours**2)) <= 1.1 * np.sqrt(np.mean(ref**2)) + 0.02
 
 
+def test_a_gyro_sample_turns_the_step_that_ends_at_its_stamp():
+    """A sample is the mean rate over the step before its stamp (as VQF and a MEMS gyroscope's
+    decimation filter have it): a turn about the vertical shows in full at the stamp of its
+    last sample, not half a step later, online and offline; a missing sample holds the last."""
+    t = np.arange(0.0, 3.0, 0.01)
+    gyr = np.zeros((t.size, 3))
+    gyr[100:200, 2] = np.radians(90.0)  # 90 deg/s over the steps ending at rows 100..199
+    acc = np.tile([0.0, 0.0, G], (t.size, 1))
+    want = 90.0 * np.clip(t - t[99], 0.0, 1.0)
+    p = Params(estimate_bias=False)
+    for gyr_in in (gyr, np.where(np.arange(t.size)[:, None] == 150, np.nan, gyr)):
+        for q in (estimate(t, gyr_in, acc, p), smooth(t, gyr_in, acc, p)):
+            yaw = np.degrees(2.0 * np.arctan2(q[:, 3], q[:, 0]))
+            np.testing.assert_allclose(yaw, want, atol=1e-6)
+
+
 def _delayed(truth, delay_s: float, seed: int):
-    """As _sample at 200 Hz, but each gyro sample is the rate delay_s before its stamp."""
-    t_f, R_f, w_f, _ = truth
+    """As _sample at 200 Hz, but each gyro sample describes the step that ended delay_s before
+    its stamp."""
+    t_f = truth[0]
     t, gyr, acc, R = _sample(truth, 200.0, seed=seed)
+    now = np.clip(np.searchsorted(t_f, t), 0, t_f.size - 1)
     idx = np.clip(np.searchsorted(t_f, t - delay_s), 0, t_f.size - 1)
-    return t, gyr - w_f[np.searchsorted(t_f, t)] + w_f[idx], acc, R
+    return t, gyr - _mean_rate(truth, now) + _mean_rate(truth, idx), acc, R
 
 
 def test_gyro_delay_is_undone_online_and_offline(truth):
