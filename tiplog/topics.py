@@ -30,6 +30,8 @@ TOPICS: dict[str, type[Message]] = {
     "camera/info": CameraCalibration_pb2.CameraCalibration,
     "vision/observation": vision_pb2.VisionObservation,
     "vision/preview": CompressedImage_pb2.CompressedImage,
+    # Frames the vision service processed, dropped as stale, and its latency (every status period).
+    "vision/status": system_pb2.LoadStatus,
     "fusion/state": fusion_pb2.FusionState,
     "fusion/diagnostics": fusion_pb2.FusionDiagnostics,
     # The state once every late measurement has been applied at its time (max_age_ms behind):
@@ -43,6 +45,8 @@ TOPICS: dict[str, type[Message]] = {
     "fusion/scene": SceneUpdate_pb2.SceneUpdate,
     "bench/robot": robot_pb2.RobotState,
     "bench/tf": FrameTransforms_pb2.FrameTransforms,
+    # The pixel tier's rendering: frames published and skipped late, and whether it keeps 15 fps.
+    "bench/status": system_pb2.LoadStatus,
     "recorder/status": recorder_pb2.RecorderStatus,
     "system/supervisor": system_pb2.SupervisorStatus,
 }

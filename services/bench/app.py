@@ -39,6 +39,9 @@ class BenchConfig(ServiceConfig):
     # Simulated passes kept for the next start with the same scenario, seed and sources (a
     # restart plays at once instead of simulating for seconds); "" = none kept.
     pass_cache_dir: str = Field(default_factory=lambda: os.path.join(_cache_home(), "tiplog", "bench"))
+    # The camera's renderer yields to the device stream and to the other services (nice
+    # increment of its thread; 0 = as the process): a busy machine costs frames, said on bench/status.
+    render_nice: int = Field(10, ge=0, le=19)
 
 
 def _cache_home() -> str:
@@ -169,6 +172,8 @@ def body(ctx: ServiceContext[BenchConfig]) -> None:
             robot_rate_hz=cfg.robot_rate_hz,
             tf_rate_hz=cfg.tf_rate_hz,
             loop=cfg.loop,
+            status_period_s=cfg.status_period_s,
+            render_nice=cfg.render_nice,
         )
         live.run()
         ctx.log.info("played: %s", live.counters)

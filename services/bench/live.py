@@ -8,7 +8,14 @@ then played against the host clock, looping:
   serial path stamps and publishes them;
 - camera: pixel tier renders each frame and publishes camera/image with its capture stamp;
   measurement tier publishes vision/observation at its processing-done time; camera/info at 1 Hz;
-- ground truth on bench/robot (evaluation only) and the tool pose on bench/tf for Foxglove.
+- ground truth on bench/robot (evaluation only) and the tool pose on bench/tf for Foxglove;
+- bench/status (a LoadStatus) every `status_period_s`: the camera frames published per second
+  against the camera's rate, those skipped because they were due over two frames ago (a renderer
+  that cannot keep 15 fps on the cores it gets), and the render time's p95. Falling behind is
+  said in one warning line, and again when it catches up.
+
+The camera thread renders at a lower priority (`render_nice`) than the device thread, so on a
+busy machine the pixel tier drops frames rather than delaying the device's bytes.
 
 Times in the simulated pass are relative to its start; pass k starts at host time
 t0 + k * duration, so stamps stay monotonic across loops.
@@ -17,6 +24,7 @@ t0 + k * duration, so stamps stay monotonic across loops.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -31,6 +39,7 @@ from tiplog.bus import Bus
 from tiplog.clock import now_ns
 from tiplog.devproto.emulator import DeviceEmulator
 from tiplog.geometry import rot_to_quat
+from tiplog.loadstatus import LoadMeter
 from tiplog.v1 import robot_pb2, vision_pb2
 
 log = logging.getLogger(__name__)
@@ -71,6 +80,8 @@ class LiveBench:
         robot_rate_hz: float = 200.0,
         tf_rate_hz: float = 30.0,
         loop: bool = True,
+        status_period_s: float = 1.0,
+        render_nice: int = 0,
     ):
         self.sim = sim
         self.bus = bus
@@ -88,6 +99,13 @@ class LiveBench:
         self._info_pub = bus.publisher("camera/info")
         self._image_pub = bus.publisher("camera/image", reliable=False) if camera_tier == "pixel" else None
         self._vision_pub = bus.publisher("vision/observation") if camera_tier == "measurement" else None
+        self._status_pub = bus.publisher("bench/status")
+        self.status_period_s = status_period_s
+        self.render_nice = render_nice
+        n_frames = len(sim.camera_frames.t_true_ns) if camera_tier != "none" else 0
+        self.camera_hz = n_frames / (self.duration_ns * 1e-9) if n_frames else 0.0
+        self.meter = LoadMeter("bench", self.camera_hz)
+        self._behind_said = False
         self.t0_ns = 0
 
     # device and truth ------------------------------------------------------------
@@ -199,6 +217,11 @@ class LiveBench:
 
     # camera ---------------------------------------------------------------------
     def _camera(self) -> None:
+        if self.render_nice > 0:  # this thread only (a Linux thread is a task of its own)
+            try:
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.nice(0) + self.render_nice)
+            except OSError as e:
+                log.warning("render priority not lowered: %s", e)
         sim = self.sim
         cam = sim.camera
         frames = sim.camera_frames
@@ -218,14 +241,18 @@ class LiveBench:
                     return
                 if now_ns() - due > 2 * 66_666_667:  # more than two frames late: skip, keep real time
                     self.counters.frames_skipped_late += 1
+                    self.meter.count("frames_skipped_late")
                     continue
                 cap = base + int(frames.capture_ns[k])
+                t_render = now_ns()
                 if self._image_pub is not None:
                     img = sim.render_frame(k)
                     self._image_pub.put_bytes(images.raw_image(img, cap, cam.frame_id).SerializeToString())
                 elif self._vision_pub is not None:
                     self._vision_pub.put_bytes(self._vision_payload(k, base))
                 self.counters.frames_published += 1
+                self.meter.count("frames_published")
+                self.meter.done((now_ns() - t_render) * 1e-6)
                 if now_ns() >= next_info:
                     self._info_pub.put(cam.to_calibration(cap))
                     next_info = now_ns() + 1_000_000_000
@@ -239,6 +266,23 @@ class LiveBench:
         m.processed_stamp_ns += base
         return m.SerializeToString()
 
+    # status ---------------------------------------------------------------------
+    def publish_status(self) -> None:
+        """bench/status for the period since the last call; one log line when the camera falls
+        behind its rate, and one when it keeps it again."""
+        m = self.meter.status()
+        if m.target_hz > 0:
+            m.note = (
+                f"{m.achieved_hz:.1f} of {m.target_hz:.0f} frames/s {'rendered' if self._image_pub else 'published'}"
+                f" (render p95 {m.latency_p95_ms:.0f} ms)"
+            )
+            if m.behind:
+                m.note = f"cannot keep {m.target_hz:.0f} frames/s: " + m.note + "; late frames are skipped"
+            if m.behind != self._behind_said:
+                self._behind_said = m.behind
+                (log.warning if m.behind else log.info)("camera: %s", m.note if m.behind else "keeps its rate again")
+        self._status_pub.put(m)
+
     # run ------------------------------------------------------------------------
     def run(self) -> None:
         self.t0_ns = now_ns() + 50_000_000
@@ -247,7 +291,9 @@ class LiveBench:
             threads.append(threading.Thread(target=self._camera, name="bench-camera", daemon=True))
         for t in threads:
             t.start()
-        self.stop.wait()
+        self.meter.status()  # the first period starts now
+        while not self.stop.wait(self.status_period_s):
+            self.publish_status()
         for t in threads:
             t.join(timeout=1.0)
 

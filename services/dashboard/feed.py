@@ -100,6 +100,8 @@ class BusFeed:
             sub("vision/preview", self._on_preview),
             sub("recorder/status", self._keep),
             sub("device/status", self._keep),
+            sub("vision/status", self._keep),  # frames vision dropped as stale, its rate and latency
+            sub("bench/status", self._keep),  # the pixel tier's rendering: whether it keeps 15 fps
             sub("device/tof", self._keep),  # the device's own smoothed range, shown as it is
             sub("system/supervisor", self._on_supervisor),  # `tiplog up`: run state and restarts
             sub("fusion/predicted", self._keep),  # the newest state carried to the present

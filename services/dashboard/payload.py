@@ -109,6 +109,12 @@ def status(feed: BusFeed, t0_ns: int) -> dict[str, Any]:
         "recorder_age_s": _age_s(feed, "recorder/status", t),
         "diagnostics": message_dict(latest.get("fusion/diagnostics")),
         "device": message_dict(latest.get("device/status")),
+        # what vision and the bench's renderer shed to keep real time (LoadStatus), with their age
+        "load": {
+            n: dict(message_dict(m), age_s=_age_s(feed, f"{n}/status", t))
+            for n in ("vision", "bench")
+            if (m := latest.get(f"{n}/status")) is not None
+        },
         "tof": tof(feed, t),
         "robot": message_dict(latest.get("bench/robot")),
         "vision": {

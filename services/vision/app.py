@@ -11,7 +11,14 @@ cart's router: `--mode client -e tcp/CART:7447`) needs no clock synchronisation.
 
 `workers` threads (default 2) each take the newest frame when free, so two frames are
 processed side by side on two cores (torch and OpenCV release the GIL); observations are
-published in the order their frames were taken (services.vision.overlap.InOrder).
+published in the order their frames were taken (services.vision.overlap.InOrder). A frame waits
+at most until a worker is free, so an observation leaves at most about two processing times
+after its frame arrived, however loaded the machine. Under `tiplog up` the process runs at a
+lower priority (nice) than fusion, so the network takes only what fusion leaves.
+
+Every status period, vision/status (a LoadStatus) says the frames received, processed, accepted
+and dropped as stale since start, the observations per second and the p95 latency from a frame's
+arrival to its observation over the period.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from services.vision.overlap import InOrder
 from services.vision.pipeline import PipelineParams
 from tiplog.clock import now_ns
 from tiplog.config import ServiceConfig
+from tiplog.loadstatus import LoadMeter
 from tiplog.service import ServiceContext, run_service
 
 NAME = "vision"
@@ -41,7 +49,9 @@ class VisionConfig(ServiceConfig):
 
     weights: str = Field("", description="network checkpoint; empty: the one shipped in models/")
     device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
-    torch_threads: int = Field(1, ge=0, le=64, description="CPU threads for the network (0: torch's default)")
+    torch_threads: int = Field(
+        0, ge=0, le=64, description="CPU threads for each worker's network (0: the cores there are over the workers)"
+    )
     calibration: str = Field("", description="calibration YAML giving the shaft radius; empty: shaft_radius_m")
     shaft_radius_m: float = Field(0.00259, gt=0.0005, lt=0.01)
     pipeline: PipelineParams = Field(default_factory=PipelineParams)
@@ -79,6 +89,20 @@ class NewestFrame:
         return item
 
 
+def cores() -> int:
+    """The cores this process may run on (its affinity, which a container's cpuset narrows)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def torch_threads(cfg: VisionConfig) -> int:
+    """Threads for the network: as configured, else the cores shared out over the workers (the
+    workers already run side by side; more threads than cores only make them wait on each other)."""
+    return cfg.torch_threads or max(1, cores() // cfg.workers)
+
+
 def _load(cfg: VisionConfig, log):
     """(Pipeline, shaft radius) from the configuration; SystemExit(2) with one log line on error."""
     import torch
@@ -87,8 +111,7 @@ def _load(cfg: VisionConfig, log):
     from services.vision.pipeline import Pipeline
     from tiplog.calibration import Calibration, CalibrationError
 
-    if cfg.torch_threads:
-        torch.set_num_threads(cfg.torch_threads)
+    torch.set_num_threads(torch_threads(cfg))
     rho = cfg.shaft_radius_m
     try:
         if cfg.calibration:
@@ -97,7 +120,10 @@ def _load(cfg: VisionConfig, log):
     except (CalibrationError, ValueError) as e:
         log.error("%s", e)
         raise SystemExit(2) from None
-    log.info("network on %s (%s); shaft radius %.3f mm", seg.device, cfg.weights or DEFAULT_WEIGHTS, rho * 1e3)
+    log.info(
+        "network on %s (%s), %d worker(s) of %d thread(s) on %d core(s), nice %d; shaft radius %.3f mm",
+        seg.device, cfg.weights or DEFAULT_WEIGHTS, cfg.workers, torch.get_num_threads(), cores(), os.nice(0), rho * 1e3,
+    )  # fmt: skip
     return Pipeline(seg, rho, cfg.pipeline)
 
 
@@ -148,10 +174,13 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
             camera[:] = [cam]
 
     slot = NewestFrame()
+    meter = LoadMeter(NAME, 0.0)  # the target: the camera's rate, as received
+    meter.status()  # the first period starts now
     pub_obs = ctx.bus.publisher("vision/observation")
+    pub_status = ctx.bus.publisher("vision/status")
     pub_prev = ctx.bus.publisher("vision/preview", reliable=False)
     ctx.bus.subscribe("camera/info", on_info)
-    sub_img = ctx.bus.subscribe("camera/image", lambda m, i: slot.put((m, i)), msg_type=RawImage)
+    sub_img = ctx.bus.subscribe("camera/image", lambda m, i: slot.put((m, i, time.monotonic())), msg_type=RawImage)
     next_status = time.monotonic() + cfg.status_period_s
 
     def status() -> None:
@@ -162,12 +191,27 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
             sub_img.decode_errors, dict(rejected) or "none",
         )  # fmt: skip
 
+    received_at_last = [0]
+
+    def publish_status() -> None:
+        with lock:
+            meter.counts.update(
+                frames_received=slot.received, frames_processed=counts["processed"], frames_accepted=counts["accepted"],
+                frames_dropped_stale=slot.dropped_stale, frames_before_camera_info=counts["early"],
+                frames_bad=counts["bad_frames"],
+            )  # fmt: skip
+        received, received_at_last[0] = slot.received - received_at_last[0], slot.received
+        meter.target_hz = received / cfg.status_period_s  # what the camera sent
+        m = meter.status()
+        m.note = f"{m.achieved_hz:.1f} of {m.target_hz:.1f} frames/s processed, the rest dropped as stale"
+        pub_status.put(m)
+
     lock = threading.Lock()  # counts and the preview's clock, shared by the workers
     order = InOrder()
     last_preview = [0.0]
 
-    def handle(item, ticket: int) -> None:  # noqa: ANN001  (msg, info) from the slot
-        msg, info = item
+    def handle(item, ticket: int) -> None:  # noqa: ANN001  (msg, info, arrival) from the slot
+        msg, info, arrived = item
         stamp = msg.timestamp.ToNanoseconds()
         try:
             try:
@@ -195,6 +239,7 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
             order.wait_turn(ticket)  # observations leave in the order their frames were taken
             pub_obs.put(res.obs)
             now = time.monotonic()
+            meter.done((now - arrived) * 1e3)
             with lock:
                 counts["processed"] += 1
                 counts["accepted"] += int(res.obs.accepted)
@@ -229,9 +274,11 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
         if time.monotonic() >= next_status:
             next_status += cfg.status_period_s
             status()
+            publish_status()
     for w in workers:
         w.join(5.0)
     status()
+    publish_status()
 
 
 # A loader thread still inside torch's import or checkpoint load when the service stops. It

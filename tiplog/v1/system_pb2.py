@@ -25,17 +25,23 @@ _sym_db = _symbol_database.Default()
 from tiplog.v1 import common_pb2 as tiplog_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x16tiplog/v1/system.proto\x12\ttiplog.v1\x1a\x16tiplog/v1/common.proto\"\xd7\x01\n\nServiceRun\x12\x0f\n\x07service\x18\x01 \x01(\t\x12)\n\x05state\x18\x02 \x01(\x0e\x32\x1a.tiplog.v1.ServiceRunState\x12\x0b\n\x03pid\x18\x03 \x01(\x05\x12\x10\n\x08restarts\x18\x04 \x01(\r\x12\x16\n\x0elast_exit_code\x18\x05 \x01(\x05\x12\x1a\n\x12last_exit_stamp_ns\x18\x06 \x01(\x03\x12\x14\n\x0crestart_in_s\x18\x07 \x01(\x01\x12\x10\n\x08uptime_s\x18\x08 \x01(\x01\x12\x12\n\nlast_error\x18\t \x01(\t\"\x98\x01\n\x10SupervisorStatus\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12\'\n\x08services\x18\x02 \x03(\x0b\x32\x15.tiplog.v1.ServiceRun\x12\x17\n\x0frouter_endpoint\x18\x03 \x01(\t\x12\r\n\x05\x65vent\x18\x04 \x01(\t\x12\x10\n\x08replayed\x18\x05 \x01(\x08*\xd1\x01\n\x0fServiceRunState\x12!\n\x1dSERVICE_RUN_STATE_UNSPECIFIED\x10\x00\x12\x1d\n\x19SERVICE_RUN_STATE_WAITING\x10\x01\x12\x1d\n\x19SERVICE_RUN_STATE_RUNNING\x10\x02\x12 \n\x1cSERVICE_RUN_STATE_RESTARTING\x10\x03\x12\x1d\n\x19SERVICE_RUN_STATE_STOPPED\x10\x04\x12\x1c\n\x18SERVICE_RUN_STATE_FAILED\x10\x05\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x16tiplog/v1/system.proto\x12\ttiplog.v1\x1a\x16tiplog/v1/common.proto\"\xd7\x01\n\nServiceRun\x12\x0f\n\x07service\x18\x01 \x01(\t\x12)\n\x05state\x18\x02 \x01(\x0e\x32\x1a.tiplog.v1.ServiceRunState\x12\x0b\n\x03pid\x18\x03 \x01(\x05\x12\x10\n\x08restarts\x18\x04 \x01(\r\x12\x16\n\x0elast_exit_code\x18\x05 \x01(\x05\x12\x1a\n\x12last_exit_stamp_ns\x18\x06 \x01(\x03\x12\x14\n\x0crestart_in_s\x18\x07 \x01(\x01\x12\x10\n\x08uptime_s\x18\x08 \x01(\x01\x12\x12\n\nlast_error\x18\t \x01(\t\"\x98\x01\n\x10SupervisorStatus\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12\'\n\x08services\x18\x02 \x03(\x0b\x32\x15.tiplog.v1.ServiceRun\x12\x17\n\x0frouter_endpoint\x18\x03 \x01(\t\x12\r\n\x05\x65vent\x18\x04 \x01(\t\x12\x10\n\x08replayed\x18\x05 \x01(\x08\"\x92\x02\n\nLoadStatus\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12\x0f\n\x07service\x18\x02 \x01(\t\x12\x11\n\ttarget_hz\x18\x03 \x01(\x01\x12\x13\n\x0b\x61\x63hieved_hz\x18\x04 \x01(\x01\x12\x10\n\x08period_s\x18\x05 \x01(\x01\x12\x31\n\x06\x63ounts\x18\x06 \x03(\x0b\x32!.tiplog.v1.LoadStatus.CountsEntry\x12\x16\n\x0elatency_p95_ms\x18\x07 \x01(\x01\x12\x0e\n\x06\x62\x65hind\x18\x08 \x01(\x08\x12\x0c\n\x04note\x18\t \x01(\t\x1a-\n\x0b\x43ountsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01*\xd1\x01\n\x0fServiceRunState\x12!\n\x1dSERVICE_RUN_STATE_UNSPECIFIED\x10\x00\x12\x1d\n\x19SERVICE_RUN_STATE_WAITING\x10\x01\x12\x1d\n\x19SERVICE_RUN_STATE_RUNNING\x10\x02\x12 \n\x1cSERVICE_RUN_STATE_RESTARTING\x10\x03\x12\x1d\n\x19SERVICE_RUN_STATE_STOPPED\x10\x04\x12\x1c\n\x18SERVICE_RUN_STATE_FAILED\x10\x05\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'tiplog.v1.system_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_SERVICERUNSTATE']._serialized_start=435
-  _globals['_SERVICERUNSTATE']._serialized_end=644
+  _globals['_LOADSTATUS_COUNTSENTRY']._loaded_options = None
+  _globals['_LOADSTATUS_COUNTSENTRY']._serialized_options = b'8\001'
+  _globals['_SERVICERUNSTATE']._serialized_start=712
+  _globals['_SERVICERUNSTATE']._serialized_end=921
   _globals['_SERVICERUN']._serialized_start=62
   _globals['_SERVICERUN']._serialized_end=277
   _globals['_SUPERVISORSTATUS']._serialized_start=280
   _globals['_SUPERVISORSTATUS']._serialized_end=432
+  _globals['_LOADSTATUS']._serialized_start=435
+  _globals['_LOADSTATUS']._serialized_end=709
+  _globals['_LOADSTATUS_COUNTSENTRY']._serialized_start=664
+  _globals['_LOADSTATUS_COUNTSENTRY']._serialized_end=709
 # @@protoc_insertion_point(module_scope)

@@ -58,3 +58,32 @@ class SupervisorStatus(_message.Message):
     event: str
     replayed: bool
     def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., services: _Optional[_Iterable[_Union[ServiceRun, _Mapping]]] = ..., router_endpoint: _Optional[str] = ..., event: _Optional[str] = ..., replayed: _Optional[bool] = ...) -> None: ...
+
+class LoadStatus(_message.Message):
+    __slots__ = ("header", "service", "target_hz", "achieved_hz", "period_s", "counts", "latency_p95_ms", "behind", "note")
+    class CountsEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: int
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[int] = ...) -> None: ...
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SERVICE_FIELD_NUMBER: _ClassVar[int]
+    TARGET_HZ_FIELD_NUMBER: _ClassVar[int]
+    ACHIEVED_HZ_FIELD_NUMBER: _ClassVar[int]
+    PERIOD_S_FIELD_NUMBER: _ClassVar[int]
+    COUNTS_FIELD_NUMBER: _ClassVar[int]
+    LATENCY_P95_MS_FIELD_NUMBER: _ClassVar[int]
+    BEHIND_FIELD_NUMBER: _ClassVar[int]
+    NOTE_FIELD_NUMBER: _ClassVar[int]
+    header: _common_pb2.Header
+    service: str
+    target_hz: float
+    achieved_hz: float
+    period_s: float
+    counts: _containers.ScalarMap[str, int]
+    latency_p95_ms: float
+    behind: bool
+    note: str
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., service: _Optional[str] = ..., target_hz: _Optional[float] = ..., achieved_hz: _Optional[float] = ..., period_s: _Optional[float] = ..., counts: _Optional[_Mapping[str, int]] = ..., latency_p95_ms: _Optional[float] = ..., behind: _Optional[bool] = ..., note: _Optional[str] = ...) -> None: ...

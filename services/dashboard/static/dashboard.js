@@ -157,6 +157,12 @@
     const diag = st.diagnostics;
     const vlat = diag && diag.vision_latency_ms ? diag.vision_latency_ms : (view.vis && view.vis.n ? view.vis.last(5) : NaN);
     text("v-vision-latency", fmt(vlat, 1));
+    const load = st.load || {};
+    const vl = load.vision, bl = load.bench;
+    text("v-vision-load", vl ? `${fmt(vl.achieved_hz, 1)} of ${fmt(vl.target_hz, 1)}, ${(vl.counts || {}).frames_dropped_stale || 0} dropped` : "\u2013");
+    text("v-camera-load", bl ? `${fmt(bl.achieved_hz, 1)} of ${fmt(bl.target_hz, 0)}, ${(bl.counts || {}).frames_skipped_late || 0} skipped` : "\u2013");
+    $("camera-row").classList.toggle("warn", !!(bl && bl.behind));
+    $("camera-row").title = bl && bl.note ? bl.note : "the bench's pixel tier: frames rendered per second against the camera's rate";
     const drows = [];
     if (diag) {
       drows.push([["mode", diag.mode || "\u2013"]], [["initialised", diag.initialised ? "yes" : "no"]],

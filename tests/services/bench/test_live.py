@@ -47,9 +47,18 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
 
         return cb
 
+    statuses = []
     with Bus(listen_cfg) as bus:
         for t in got:
             bus.subscribe(t, on(t))
+        counted = threading.Event()  # a bench/status that counts published frames
+
+        def on_status(m, _info):
+            statuses.append(m)
+            if m.counts["frames_published"] > 0:
+                counted.set()
+
+        bus.subscribe("bench/status", on_status)
         ep, prefix = listen_cfg.listen[0], listen_cfg.prefix
         bench = _spawn(
             "services.bench",
@@ -64,6 +73,7 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
         gateway = _spawn("services.sensor_gateway", ep, prefix, f"port={link}")
         try:
             assert enough.wait(90), {k: len(v) for k, v in got.items()}
+            assert counted.wait(10), statuses[-1:]
         finally:
             for p in (bench, gateway):
                 p.terminate()
@@ -93,6 +103,11 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
     assert np.all((depth > 100) & (depth < 180))
     # device samples and ground truth share the host clock
     assert abs(stamps[-1] - robot[-1].header.stamp_ns) < 1_000_000_000
+    # the camera's account: its rate (the scenario's 15 fps), what it published, whether it keeps up
+    st = next(m for m in statuses if m.counts["frames_published"] > 0)
+    assert st.service == "bench" and abs(st.target_hz - 15.0) < 0.5 and st.period_s > 0
+    assert st.note.startswith(("cannot keep 15", f"{st.achieved_hz:.1f} of 15"))
+    assert st.behind == (st.achieved_hz < 0.9 * st.target_hz)
     if tier == "measurement":
         assert all(f.processed_stamp_ns > f.header.stamp_ns for f in frames)
     else:

@@ -227,3 +227,24 @@ def test_supervisor_run_state_and_restarts_join_health(served):
     assert body["supervisor_event"] == "fusion exited with -9; restarting in 1.0 s"
     assert body["health"]["fusion"]["run_state"] == "restarting" and body["health"]["fusion"]["restarts"] == 2
     assert body["health"]["recorder"]["run_state"] == "running"
+
+
+def test_vision_and_camera_load_join_the_status(served):
+    """vision/status and bench/status as published (the page shows rate, drops and 'behind')."""
+    from tiplog.loadstatus import LoadMeter
+
+    bench = LoadMeter("bench", 15.0)
+    bench.status(1_000_000_000)
+    for _ in range(9):
+        bench.done(80.0)
+    bench.count("frames_skipped_late", 6)
+    msg = bench.status(2_000_000_000)
+    msg.note = "cannot keep 15 frames/s: 9.0 of 15 frames/s rendered"
+    served.pub_bus.publisher("bench/status").put(msg)
+    assert served.running.feed.wait_latest("bench/status", 10)
+    with served.client(VIEWER) as c:
+        load = c.get("/api/status").json()["load"]
+    b = load["bench"]
+    assert b["behind"] and b["achieved_hz"] == 9.0 and b["counts"]["frames_skipped_late"] == 6
+    assert b["note"].startswith("cannot keep 15") and b["age_s"] >= 0
+    assert "vision" not in load  # none published

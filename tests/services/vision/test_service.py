@@ -71,6 +71,8 @@ def test_frames_in_observations_out(mode, endpoint, rendered, camera):
     with Bus(test_cfg) as bus:
         bus.subscribe("vision/observation", col.on_obs)
         bus.subscribe("vision/preview", col.on_preview)
+        statuses = []
+        bus.subscribe("vision/status", lambda m, _i: statuses.append(m))
         pub_info = bus.publisher("camera/info")
         pub_img = bus.publisher("camera/image")
         args = ["--connect", endpoint, "--prefix", prefix] + (
@@ -145,6 +147,13 @@ def test_frames_in_observations_out(mode, endpoint, rendered, camera):
     assert "bad_size" in last and "bad_encoding" in last
     assert frames_in == processed + dropped + early + bad
     assert dropped >= len(burst) - len(processed_burst)
+    # the same account on vision/status, published once more on exit
+    last_status = statuses[-1]
+    assert last_status.service == "vision" and last_status.period_s > 0
+    c = last_status.counts
+    assert (c["frames_received"], c["frames_processed"], c["frames_dropped_stale"]) == (frames_in, processed, dropped)
+    assert (c["frames_before_camera_info"], c["frames_bad"]) == (early, bad)
+    assert any(m.achieved_hz > 0 and m.latency_p95_ms > 0 for m in statuses)
 
 
 def test_a_signal_while_the_network_loads_stops_cleanly(endpoint):
