@@ -69,10 +69,9 @@ FIRST_DELAY_S = {"recorder": 0.05, "bench": 0.05, "fusion": 0.05}
 # Kept ready (imports and compiled kernels loaded, off the bus) to take over at once when the
 # running one dies: fusion's start-up is over a second of imports and kernel loading.
 SPARES = ("fusion",)
-# Lower priority (nice increments) for heavy work that sheds load by itself, so that fusion never
-# waits for a core behind it: vision's network drops stale frames, and the bench lowers its own
-# renderer thread (bench.render_nice), not its device stream.
-NICE = {"vision": 10}
+# The spare starts once fusion has run this long: not within the start, whose imports and loading
+# already share the cores, and on whose end the first estimate waits.
+SPARE_AFTER_S = 15.0
 
 
 def _config_fields(name: str) -> set[str]:
@@ -159,13 +158,9 @@ def _spawn(name: str, endpoint: str, config: str | None, sets: list[str] = (), s
         cmd += ["--set", s]
     # stderr through the supervisor, which passes every line on and keeps the last error line.
     env = {**os.environ, SUPERVISED_ENV: "1", SUPERVISOR_PID_ENV: str(os.getpid())}
-    nice = NICE.get(name, 0)
-    pre = functools.partial(os.nice, nice) if nice else None
     if spare:  # waits for a line on stdin (tiplog.service.standby)
-        return subprocess.Popen(
-            cmd, env={**env, STANDBY_ENV: "1"}, stderr=subprocess.PIPE, stdin=subprocess.PIPE, preexec_fn=pre
-        )
-    return subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE, preexec_fn=pre)
+        return subprocess.Popen(cmd, env={**env, STANDBY_ENV: "1"}, stderr=subprocess.PIPE, stdin=subprocess.PIPE)
+    return subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE)
 
 
 class RecorderWatch:
@@ -268,6 +263,7 @@ def run(args: argparse.Namespace) -> int:
             publish=status_pub.put,
             router_endpoint=args.listen,
             recording=functools.partial(watch.recording, recorder),
+            spare_after_s=SPARE_AFTER_S,
         )
         if calibration is not None:
             log.info("calibration file: %s", calibration)

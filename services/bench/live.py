@@ -14,8 +14,9 @@ then played against the host clock, looping:
   that cannot keep 15 fps on the cores it gets), and the render time's p95. Falling behind is
   said in one warning line, and again when it catches up.
 
-The camera thread renders at a lower priority (`render_nice`) than the device thread, so on a
-busy machine the pixel tier drops frames rather than delaying the device's bytes.
+The camera thread renders at a lower priority (`render_nice`, once its first frame is rendered)
+than the device thread, so on a busy machine the pixel tier drops frames rather than delaying the
+device's bytes or fusion.
 
 Times in the simulated pass are relative to its start; pass k starts at host time
 t0 + k * duration, so stamps stay monotonic across loops.
@@ -24,7 +25,6 @@ t0 + k * duration, so stamps stay monotonic across loops.
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from dataclasses import dataclass
@@ -40,7 +40,8 @@ from tiplog.clock import now_ns
 from tiplog.devproto.emulator import DeviceEmulator
 from tiplog.geometry import rot_to_quat
 from tiplog.loadstatus import LoadMeter
-from tiplog.v1 import robot_pb2, vision_pb2
+from tiplog.priority import lower_this_thread
+from tiplog.v1 import robot_pb2, system_pb2, vision_pb2
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +107,7 @@ class LiveBench:
         self.camera_hz = n_frames / (self.duration_ns * 1e-9) if n_frames else 0.0
         self.meter = LoadMeter("bench", self.camera_hz)
         self._behind_said = False
+        self._camera_ready = camera_tier == "none"
         self.t0_ns = 0
 
     # device and truth ------------------------------------------------------------
@@ -217,16 +219,17 @@ class LiveBench:
 
     # camera ---------------------------------------------------------------------
     def _camera(self) -> None:
-        if self.render_nice > 0:  # this thread only (a Linux thread is a task of its own)
-            try:
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.nice(0) + self.render_nice)
-            except OSError as e:
-                log.warning("render priority not lowered: %s", e)
         sim = self.sim
         cam = sim.camera
         frames = sim.camera_frames
         if self._image_pub is not None:
-            sim.load_session()  # a cached pixel pass: the frames due meanwhile are skipped as late
+            # A cached pixel pass: the session and the renderer's first frame (its scene built)
+            # at the normal priority, the start's critical path; the frames due meanwhile are
+            # skipped as late and not judged (the meter's period starts after).
+            sim.render_frame(0)
+        self._camera_ready = True
+        self.meter.status()
+        lower_this_thread(self.render_nice, log)
         n = len(frames.t_true_ns)
         loop_k = 0
         next_info = 0
@@ -244,6 +247,9 @@ class LiveBench:
                     self.meter.count("frames_skipped_late")
                     continue
                 cap = base + int(frames.capture_ns[k])
+                if now_ns() >= next_info:  # before the frame: vision needs the camera for its first
+                    self._info_pub.put(cam.to_calibration(cap))
+                    next_info = now_ns() + 1_000_000_000
                 t_render = now_ns()
                 if self._image_pub is not None:
                     img = sim.render_frame(k)
@@ -253,9 +259,6 @@ class LiveBench:
                 self.counters.frames_published += 1
                 self.meter.count("frames_published")
                 self.meter.done((now_ns() - t_render) * 1e-6)
-                if now_ns() >= next_info:
-                    self._info_pub.put(cam.to_calibration(cap))
-                    next_info = now_ns() + 1_000_000_000
             loop_k += 1
             if not self.loop:
                 return
@@ -270,6 +273,9 @@ class LiveBench:
     def publish_status(self) -> None:
         """bench/status for the period since the last call; one log line when the camera falls
         behind its rate, and one when it keeps it again."""
+        if not self._camera_ready:  # loading the renderer: nothing to judge yet
+            self._status_pub.put(system_pb2.LoadStatus(service="bench", target_hz=self.camera_hz, note="loading"))
+            return
         m = self.meter.status()
         if m.target_hz > 0:
             m.note = (
@@ -291,7 +297,6 @@ class LiveBench:
             threads.append(threading.Thread(target=self._camera, name="bench-camera", daemon=True))
         for t in threads:
             t.start()
-        self.meter.status()  # the first period starts now
         while not self.stop.wait(self.status_period_s):
             self.publish_status()
         for t in threads:

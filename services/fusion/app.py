@@ -11,12 +11,14 @@ passes the bench's as-calibrated file); without one the service says so and exit
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 
 from pydantic import Field, field_validator, model_validator
 
 from services.fusion.live import LiveFusion, warm_kernels
 from services.fusion.params import Params, ParamsError, mode_name, parse_sensors
+from services.fusion.warmup import kernel_cache
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.config import ServiceConfig
 from tiplog.service import ServiceContext, run_service
@@ -89,8 +91,13 @@ def _inputs(cfg: FusionConfig) -> tuple[Calibration, Params, frozenset[str]]:
 _prepared: list[bool] = []
 
 
-def prepare(cfg: FusionConfig) -> None:
-    """A spare's preparation under `tiplog up`: the compiled kernels loaded before it is called up."""
+def prepare(cfg: FusionConfig, wait_s: float = 300.0) -> None:
+    """A spare's preparation under `tiplog up`: the compiled kernels loaded before it is called up.
+    With no compiled cache yet, the running fusion is compiling them: the spare waits for its cache
+    (up to `wait_s`) rather than compiling the same kernels beside it on the same cores."""
+    deadline = time.monotonic() + wait_s
+    while kernel_cache()[0] is False and time.monotonic() < deadline:
+        time.sleep(1.0)  # polling a folder another process writes; nothing to wait on
     warm_kernels(*_inputs(cfg))
     _prepared.append(True)
 

@@ -13,8 +13,9 @@ cart's router: `--mode client -e tcp/CART:7447`) needs no clock synchronisation.
 processed side by side on two cores (torch and OpenCV release the GIL); observations are
 published in the order their frames were taken (services.vision.overlap.InOrder). A frame waits
 at most until a worker is free, so an observation leaves at most about two processing times
-after its frame arrived, however loaded the machine. Under `tiplog up` the process runs at a
-lower priority (nice) than fusion, so the network takes only what fusion leaves.
+after its frame arrived, however loaded the machine. The workers run at a lower priority
+(`worker_nice`) than fusion and the rest, so the network takes only the CPU they leave; loading
+(torch, the checkpoint) keeps the normal priority, since the first estimate waits for it.
 
 Every status period, vision/status (a LoadStatus) says the frames received, processed, accepted
 and dropped as stale since start, the observations per second and the p95 latency from a frame's
@@ -39,6 +40,7 @@ from services.vision.pipeline import PipelineParams
 from tiplog.clock import now_ns
 from tiplog.config import ServiceConfig
 from tiplog.loadstatus import LoadMeter
+from tiplog.priority import lower_this_thread
 from tiplog.service import ServiceContext, run_service
 
 NAME = "vision"
@@ -60,6 +62,7 @@ class VisionConfig(ServiceConfig):
     workers: int = Field(
         2, ge=1, le=8, description="frames processed side by side (each worker takes the newest frame when free)"
     )
+    worker_nice: int = Field(10, ge=0, le=19, description="nice increment of the workers: the network yields")
 
 
 class NewestFrame:
@@ -121,8 +124,9 @@ def _load(cfg: VisionConfig, log):
         log.error("%s", e)
         raise SystemExit(2) from None
     log.info(
-        "network on %s (%s), %d worker(s) of %d thread(s) on %d core(s), nice %d; shaft radius %.3f mm",
-        seg.device, cfg.weights or DEFAULT_WEIGHTS, cfg.workers, torch.get_num_threads(), cores(), os.nice(0), rho * 1e3,
+        "network on %s (%s), %d worker(s) of %d thread(s) on %d core(s), nice +%d; shaft radius %.3f mm",
+        seg.device, cfg.weights or DEFAULT_WEIGHTS, cfg.workers, torch.get_num_threads(), cores(), cfg.worker_nice,
+        rho * 1e3,
     )  # fmt: skip
     return Pipeline(seg, rho, cfg.pipeline)
 
@@ -256,6 +260,7 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
     taking = threading.Lock()  # a frame and its ticket are taken together: tickets follow the frames
 
     def work() -> None:
+        lower_this_thread(cfg.worker_nice, log)
         while not ctx.stop.is_set():
             with taking:
                 item = slot.take(0.1)

@@ -62,19 +62,3 @@ def test_a_bad_listen_endpoint_is_one_line_before_anything_starts(listen, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert e.value.code == 2 and len(err) == 1 and "--listen" in err[0] and listen in err[0], err
 
-
-def test_vision_runs_at_a_lower_priority_than_fusion():
-    """tiplog up starts heavy work that sheds load (vision's network) niced, fusion as itself."""
-    import os
-
-    from tiplog.up import NICE, _spawn
-
-    assert NICE["vision"] > 0 and "fusion" not in NICE
-    procs = {n: _spawn(n, "tcp/127.0.0.1:1", None, ["status_period_s=notanumber"]) for n in ("vision", "fusion")}
-    try:
-        nice = {n: os.getpriority(os.PRIO_PROCESS, p.pid) for n, p in procs.items()}
-    finally:
-        for p in procs.values():
-            p.kill()
-            p.communicate(timeout=30)
-    assert nice["vision"] == os.nice(0) + NICE["vision"] and nice["fusion"] == os.nice(0)

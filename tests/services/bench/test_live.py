@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT
+from tests.tiplog.test_priority import thread_nices
 from tiplog.bus import Bus
 from tiplog.calibration import Calibration
 
@@ -74,6 +75,9 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
         try:
             assert enough.wait(90), {k: len(v) for k, v in got.items()}
             assert counted.wait(10), statuses[-1:]
+            if tier == "pixel":  # the renderer yields; the device stream keeps its priority
+                nices = thread_nices(bench.pid)
+                assert os.nice(0) + 10 in nices and os.nice(0) in nices, nices
         finally:
             for p in (bench, gateway):
                 p.terminate()

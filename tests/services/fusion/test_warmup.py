@@ -156,3 +156,20 @@ def test_a_calibration_it_cannot_use_only_costs_the_warm_up(caplog):
     with caplog.at_level("INFO", logger="tiplog.fusion"):
         warm_kernels(_bench_calibration("teleop", 0), Params(), frozenset({"imu", "tof", "vision"}))
     assert "filter kernels ready in" in caplog.text
+
+
+def test_a_spare_waits_for_the_running_fusions_cache_instead_of_compiling_beside_it(monkeypatch):
+    from services.fusion import app
+
+    answers = iter([False, False, True])
+    monkeypatch.setattr(app, "kernel_cache", lambda: (next(answers), "cache"))
+    warmed = []
+    monkeypatch.setattr(app, "warm_kernels", lambda *a: warmed.append(a))
+    monkeypatch.setattr(app, "_inputs", lambda cfg: ("calibration", "params", "sensors"))
+    monkeypatch.setattr(app.time, "sleep", lambda s: None)  # the poll's period
+    app.prepare(None)
+    assert warmed == [("calibration", "params", "sensors")] and next(answers, "done") == "done"
+    monkeypatch.setattr(app, "kernel_cache", lambda: (None, ""))  # no numba: nothing to wait for
+    app.prepare(None)
+    assert len(warmed) == 2
+    app._prepared.clear()

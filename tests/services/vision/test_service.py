@@ -16,6 +16,7 @@ import pytest
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from tests.conftest import ROOT
+from tests.tiplog.test_priority import thread_nices
 from tiplog.bus import Bus, BusConfig
 from tiplog.images import raw_image
 
@@ -101,6 +102,9 @@ def test_frames_in_observations_out(mode, endpoint, rendered, camera):
                 stamp += 1
             first = next(o for o in answered if _had_camera(o))
             assert first.accepted, first.reject_reason
+            # the workers yield to the other services; the rest of the process keeps its priority
+            nices = thread_nices(proc.pid)
+            assert nices.count(os.nice(0) + 10) >= 2 and os.nice(0) in nices, nices
 
             # bad frames: rejected with their reason, and the service carries on
             pub_img.put(raw_image(frames[0][:360, :640].copy(), 2_000))
