@@ -274,7 +274,9 @@ class LiveBench:
         """bench/status for the period since the last call; one log line when the camera falls
         behind its rate, and one when it keeps it again."""
         if not self._camera_ready:  # loading the renderer: nothing to judge yet
-            self._status_pub.put(system_pb2.LoadStatus(service="bench", target_hz=self.camera_hz, note="loading"))
+            m = system_pb2.LoadStatus(service="bench", target_hz=self.camera_hz, note="loading the renderer")
+            m.header.stamp_ns = now_ns()
+            self._status_pub.put(m)
             return
         m = self.meter.status()
         if m.target_hz > 0:

@@ -108,6 +108,7 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
     # device samples and ground truth share the host clock
     assert abs(stamps[-1] - robot[-1].header.stamp_ns) < 1_000_000_000
     # the camera's account: its rate (the scenario's 15 fps), what it published, whether it keeps up
+    assert all(m.header.stamp_ns > 0 for m in statuses)  # the recorder rejects a message without
     st = next(m for m in statuses if m.counts["frames_published"] > 0)
     assert st.service == "bench" and abs(st.target_hz - 15.0) < 0.5 and st.period_s > 0
     assert st.note.startswith(("cannot keep 15", f"{st.achieved_hz:.1f} of 15"))
