@@ -56,7 +56,10 @@ class MetricsParams:
     draws: int = 200  # trajectories drawn from the estimate's uncertainty per segment
     error_corner_hz: float = 0.4  # corner of the drawn errors' spectrum (see `correlated_noise`)
     envelope_s: float = 1.0  # the stream's sigma smoothed over this (see `sigma_envelope`)
-    sigma_scale: float = 0.33  # drawn errors' SD over the stream's smoothed sigma (see docs/metrics.md)
+    sigma_scale: float = 0.33  # drawn errors' SD across the shaft over the stream's smoothed sigma
+    depth_sigma_scale: float = 0.27  # ... and along the shaft (the insertion depth's error)
+    depth_scale_sd: float = 0.033  # relative error of the estimate's depth excursions (1 sigma), per draw
+    roll_scale_sd: float = 0.002  # the gyro's scale-factor error about the shaft (1 sigma), per draw
     level: float = 0.95  # interval level
 
     def __post_init__(self) -> None:
@@ -65,10 +68,12 @@ class MetricsParams:
         if (
             self.draws < 0
             or not 0.0 < self.level < 1.0
-            or min(self.error_corner_hz, self.envelope_s, self.sigma_scale) <= 0
+            or min(self.error_corner_hz, self.envelope_s, self.sigma_scale, self.depth_sigma_scale) <= 0
+            or min(self.depth_scale_sd, self.roll_scale_sd) < 0
         ):
             raise ValueError(
-                "metrics: draws >= 0, 0 < level < 1, and error_corner_hz, envelope_s and sigma_scale > 0 are required"
+                "metrics: draws >= 0, 0 < level < 1, error_corner_hz, envelope_s, sigma_scale and "
+                "depth_sigma_scale > 0, and depth_scale_sd and roll_scale_sd >= 0 are required"
             )
 
 
@@ -169,6 +174,10 @@ def segment_metrics(m: Motion, params: MetricsParams) -> dict[str, float]:
     }
 
 
+# metrics whose interval takes off what the estimate's own error added to them (see `draw_intervals`)
+DEBIASED = ("depth_path_mm",)
+
+
 def correlated_noise(rng: np.random.Generator, n: int, dims: int, rate_hz: float, corner_hz: float) -> np.ndarray:
     """Stationary Gaussian noise (n, dims), unit variance per column, of a second-order Gauss-Markov
     process: power spectrum proportional to 1 / (1 + (f / corner_hz)^2)^2 (two first-order lags in
@@ -195,17 +204,31 @@ def sigma_envelope(sigma: np.ndarray, rate_hz: float, envelope_s: float) -> np.n
 
 
 def drawn_motion(m: Motion, rng: np.random.Generator, params: MetricsParams) -> Motion:
-    """One trajectory drawn about the estimate: each tip axis and the roll offset by
-    `params.sigma_scale` times its `sigma_envelope` times `correlated_noise` (axes drawn
-    independently: the estimate carries no cross-covariance)."""
+    """One trajectory drawn about the estimate (base frame, m and rad).
+
+    The tip is offset by `sigma_envelope` times `correlated_noise` per base axis (axes drawn
+    independently: the estimate carries no cross-covariance), that offset's component along the
+    shaft scaled by `params.depth_sigma_scale` and the rest by `params.sigma_scale` (the estimate's
+    error lies mostly along the shaft, where the depth comes from the ToF, less across it, where
+    vision fixes the direction). Then the errors the sigmas do not carry, one draw per trajectory:
+    the depth's excursions about the segment's mean depth scaled by 1 + `depth_scale_sd` x N(0, 1)
+    (the depth's geometry as calibrated), the roll's about its start by 1 + `roll_scale_sd` x
+    N(0, 1) (the gyro's scale factor: roll about the shaft is the gyro's alone, a shaft's
+    silhouette does not show it). The roll is offset by `sigma_scale` times its envelope times noise."""
     n, rate = len(m.t_s), params.rate_hz
     z = correlated_noise(rng, n, 4, rate, params.error_corner_hz)
-    k = params.sigma_scale
+    scale_depth, scale_roll = 1.0 + np.array([params.depth_scale_sd, params.roll_scale_sd]) * rng.standard_normal(2)
     p, roll = m.p_tip_base_m, m.roll_rad
     if m.tip_sigma_m is not None:
-        p = p + k * sigma_envelope(m.tip_sigma_m, rate, params.envelope_s) * z[:, :3]
+        depth, u = kin.shaft_coordinates(p, m.rcm_base_m)
+        d = sigma_envelope(m.tip_sigma_m, rate, params.envelope_s) * z[:, :3]
+        along = np.einsum("ij,ij->i", d, u)
+        d = params.sigma_scale * (d - along[:, None] * u)
+        depth = depth.mean() + (depth - depth.mean()) * scale_depth + params.depth_sigma_scale * along
+        p = m.rcm_base_m + depth[:, None] * u + d
+    roll = roll[0] + (roll - roll[0]) * scale_roll
     if m.roll_sigma_rad is not None:
-        roll = roll + k * sigma_envelope(m.roll_sigma_rad, rate, params.envelope_s) * z[:, 3]
+        roll = roll + params.sigma_scale * sigma_envelope(m.roll_sigma_rad, rate, params.envelope_s) * z[:, 3]
     return replace(m, p_tip_base_m=p, roll_rad=roll)
 
 
@@ -214,14 +237,21 @@ def draw_intervals(
 ) -> dict[str, tuple[float, float]]:
     """{metric: (low, high)}: the spread of the metric over `params.draws` trajectories drawn about
     the estimate, centred on the estimate's value: with q_lo, q_mid, q_hi the draws' lower, middle
-    and upper quantiles and x the estimate's value, (x - q_mid + q_lo, x - q_mid + q_hi).
+    and upper quantiles and x the estimate's value, (x - q_mid + q_lo, x - q_mid + q_hi); for the
+    metrics of `DEBIASED`, placed about x less the draws' mean lengthening of the path (mean - x).
 
-    The draws give the spread, not a bias correction: drawn errors add to the estimate's own, so
-    the draws' shift from x (a longer path, a lower LDLJ) is what a second error adds, and
-    the estimate's actual shift from the truth depends on how its error lies along the motion,
-    which the stream's per-axis sigma does not carry (on the bench the draws' shift was several
-    times the estimate's own for LDLJ, the paths and the mean speed; docs/metrics.md). Empty
-    without draws or sigmas."""
+    For most metrics the draws give the spread, not a bias correction: drawn errors add to the
+    estimate's own, so the draws' shift from x (a longer path, a lower LDLJ) is what a second
+    error adds, and the estimate's actual shift from the truth depends on how its error lies along
+    the motion, which the stream's per-axis sigma does not carry (on the bench the draws' shift was
+    several times the estimate's own for LDLJ, the tip path and the mean speed; docs/metrics.md).
+    The depth path is the exception: its error is drawn at its own size along the shaft, and what
+    it adds to the path is one-sided and larger than its spread (the depth moves slowly beside its
+    noise). Where the depth moves, a noise's velocity adds to the depth speed in quadrature, so the
+    path added grows with the noise's variance and a second error of the estimate's size adds what
+    the first did: the draws' lengthening is taken off. Where the tip is wholly still, the path
+    grows with the noise's SD and the first error added up to 2.4 times (1 / (sqrt 2 - 1)) what
+    the second does: there it is taken off in part. Empty without draws or sigmas."""
     if params.draws == 0 or m.tip_sigma_m is None:
         return {}
     rng = np.random.default_rng(seed)
@@ -235,5 +265,6 @@ def draw_intervals(
         if key == "duration_s" or len(vals) == 0 or not np.isfinite(x):
             continue
         q_lo, q_mid, q_hi = np.quantile(vals, [a, 0.5, 1.0 - a])
-        out[key] = (float(x - q_mid + q_lo), float(x - q_mid + q_hi))
+        centre = x - max(float(np.mean(vals)) - x, 0.0) if key in DEBIASED else x
+        out[key] = (float(centre - q_mid + q_lo), float(centre - q_mid + q_hi))
     return out

@@ -279,6 +279,61 @@ def test_an_interval_is_the_draws_spread_about_the_value_not_their_shift():
         assert hi - lo == pytest.approx(np.quantile(vals, 0.975) - np.quantile(vals, 0.025), rel=1e-9)
 
 
+def test_drawn_errors_lie_along_and_across_the_shaft_at_their_own_sizes():
+    n = 20_000
+    u = np.array([0.0, 0.6, -0.8])
+    m = Motion(np.arange(n) / 100.0, np.tile(RCM + 0.14 * u, (n, 1)), np.zeros(n), RCM, np.full((n, 3), 2e-3), None)
+    params = MetricsParams(depth_scale_sd=0.0)
+    d = drawn_motion(m, np.random.default_rng(1), params).p_tip_base_m - m.p_tip_base_m
+    along = d @ u
+    across = d - along[:, None] * u
+    assert np.std(along) == pytest.approx(params.depth_sigma_scale * 2e-3, rel=0.1)
+    assert np.sqrt(np.mean(np.sum(across**2, 1)) / 2) == pytest.approx(params.sigma_scale * 2e-3, rel=0.1)
+
+
+def _depth_strokes(duration_s: float, rate: float) -> np.ndarray:
+    """The tip moved slowly in and out along one shaft direction: 2 + 1 mm of depth at 0.3 and 0.47 Hz."""
+    t = np.arange(0.0, duration_s, 1.0 / rate)
+    depth = 0.14 + 0.002 * np.sin(2 * np.pi * 0.3 * t) + 0.001 * np.sin(2 * np.pi * 0.47 * t + 1.0)
+    u = np.array([0.0, 0.3, -1.0]) / np.hypot(0.3, 1.0)
+    return RCM + depth[:, None] * u
+
+
+def test_the_depth_paths_interval_takes_off_what_the_estimates_error_added():
+    # an estimate's depth error lengthens the depth path whichever way it points: an interval about
+    # the estimate's value lay above the truth (on the bench the estimate's depth path was 13.5 mm
+    # long on average, half the segments' truths outside); the interval takes off the path the
+    # draws add, which is what the estimate's own error of the same size added
+    truth = _depth_strokes(60.0, 100.0)
+    params = MetricsParams(draws=40, depth_scale_sd=0.0)
+    true_path = segment_metrics(_motion(truth, 100.0), params)["depth_path_mm"]
+    u = (truth - RCM) / np.linalg.norm(truth - RCM, axis=1)[:, None]
+    for seed in range(3):
+        z = correlated_noise(np.random.default_rng(100 + seed), len(truth), 1, 100.0, params.error_corner_hz)
+        m = _motion(truth + params.depth_sigma_scale * 4e-3 * z * u, 100.0, sigma_m=4e-3)
+        x = segment_metrics(m, params)["depth_path_mm"]
+        lo, hi = draw_intervals(m, {"depth_path_mm": x}, params)["depth_path_mm"]
+        assert x > true_path + 10.0  # the error's lengthening, more than a third of the interval
+        assert lo <= true_path <= hi
+        assert (lo + hi) / 2 < x - 0.5 * (x - true_path)
+
+
+def test_the_roll_paths_interval_holds_the_gyros_scale_error():
+    # roll about the shaft is the gyro's alone: its scale-factor error scales the roll path, which
+    # no sigma of the stream carries (on the bench the roll path's error was its rate's 0.1-0.25 %)
+    t = np.arange(0.0, 20.0, 0.01)
+    roll = np.deg2rad(60.0) * np.sin(2 * np.pi * 0.4 * t)
+    p = np.tile(RCM + [0.0, 0.0, -0.14], (len(t), 1))
+    params = MetricsParams(draws=40)
+    truth = segment_metrics(Motion(t, p, roll, RCM), params)["roll_path_deg"]
+    m = Motion(t, p, roll * 1.003, RCM, np.full((len(t), 3), 1e-3), np.full(len(t), np.deg2rad(0.2)))
+    point = segment_metrics(m, params)
+    lo, hi = draw_intervals(m, point, params)["roll_path_deg"]
+    assert point["roll_path_deg"] - truth == pytest.approx(0.003 * truth, rel=0.05)
+    assert lo <= truth <= hi
+    assert hi - lo > 2 * 1.5 * params.roll_scale_sd * truth
+
+
 def test_resample_puts_two_streams_on_one_grid():
     t_a = np.array([0, 4_000_000, 11_000_000, 20_000_000, 31_000_000], np.int64) + 5_000_000
     x = np.linspace(0, 1, 5)[:, None] * np.ones((1, 3))
