@@ -208,16 +208,27 @@ class Subscriber(_Closing, Generic[M]):
 
 
 class RawSubscriber(_Closing):
-    """Undecoded payloads with their info, for the recorder: `callback(payload, info)`."""
+    """Undecoded payloads with their info, for the recorder: `callback(payload, info)`; with
+    `want`, only for the samples whose info it accepts (the others' payloads are never copied
+    out of Zenoh: a camera frame is megabytes)."""
 
-    def __init__(self, bus: Bus, key_expr: str, callback: Callable[[bytes, SampleInfo], None]):
+    def __init__(
+        self,
+        bus: Bus,
+        key_expr: str,
+        callback: Callable[[bytes, SampleInfo], None],
+        want: Callable[[SampleInfo], bool] | None = None,
+    ):
         self._bus = bus
         self._callback = callback
+        self._want = want
         self._sub = bus.session.declare_subscriber(bus.key(key_expr), self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         info = _sample_info(self._bus, sample)
         try:
+            if self._want is not None and not self._want(info):
+                return
             self._callback(sample.payload.to_bytes(), info)
         except Exception:
             log.exception("raw subscriber callback for %s raised", info.topic)
@@ -357,8 +368,13 @@ class Bus:
         self._declared.append(sub)
         return sub
 
-    def subscribe_raw(self, key_expr: str, callback: Callable[[bytes, SampleInfo], None]) -> RawSubscriber:
-        sub = RawSubscriber(self, key_expr, callback)
+    def subscribe_raw(
+        self,
+        key_expr: str,
+        callback: Callable[[bytes, SampleInfo], None],
+        want: Callable[[SampleInfo], bool] | None = None,
+    ) -> RawSubscriber:
+        sub = RawSubscriber(self, key_expr, callback, want)
         self._declared.append(sub)
         return sub
 

@@ -6,7 +6,8 @@ then played against the host clock, looping:
 - device samples leave through a pseudo-terminal in the device's own serial protocol
   (tiplog.devproto), each written at its simulated host-arrival time, so the gateway's real
   serial path stamps and publishes them;
-- camera: pixel tier renders each frame and publishes camera/image with its capture stamp;
+- camera: pixel tier renders each frame ahead of its time (by the recent render time) and
+  publishes camera/image with its capture stamp when it is due, as a camera delivers it;
   measurement tier publishes vision/observation at its processing-done time; camera/info at 1 Hz;
 - ground truth on bench/robot (evaluation only) and the tool pose on bench/tf for Foxglove;
 - bench/status (a LoadStatus) every `status_period_s`: the camera frames published per second
@@ -231,6 +232,8 @@ class LiveBench:
         self.meter.status()
         lower_this_thread(self.render_nice, log)
         n = len(frames.t_true_ns)
+        period_ns = int(1e9 / self.camera_hz) if self.camera_hz > 0 else 66_666_667
+        render_ns = 0.0  # the expected render time: a frame is rendered ahead, to leave at its time
         loop_k = 0
         next_info = 0
         while not self.stop.is_set():
@@ -239,26 +242,37 @@ class LiveBench:
                 if self.stop.is_set():
                     return
                 due = base + int(frames.publish_ns[k])
-                wait_s = (due - now_ns()) * 1e-9
+                wait_s = (due - render_ns - now_ns()) * 1e-9
                 if wait_s > 0 and self.stop.wait(wait_s):
                     return
-                if now_ns() - due > 2 * 66_666_667:  # more than two frames late: skip, keep real time
+                # a frame that would leave more than two periods after its time is skipped: the
+                # camera keeps real time, a slow renderer costs frames, not latency
+                if now_ns() + render_ns - due > 2 * period_ns:
                     self.counters.frames_skipped_late += 1
                     self.meter.count("frames_skipped_late")
                     continue
                 cap = base + int(frames.capture_ns[k])
+                t_render = now_ns()
+                payload, took = b"", 0
+                pub = self._image_pub if self._image_pub is not None else self._vision_pub
+                if self._image_pub is not None:
+                    img = sim.render_frame(k)
+                    payload = images.raw_image(img, cap, cam.frame_id).SerializeToString()
+                    took = now_ns() - t_render
+                    render_ns = took if render_ns == 0 else 0.8 * render_ns + 0.2 * took
+                elif self._vision_pub is not None:
+                    payload = self._vision_payload(k, base)
+                wait_s = (due - now_ns()) * 1e-9  # rendered early: it leaves at its time, as a camera's
+                if wait_s > 0 and self.stop.wait(wait_s):
+                    return
                 if now_ns() >= next_info:  # before the frame: vision needs the camera for its first
                     self._info_pub.put(cam.to_calibration(cap))
                     next_info = now_ns() + 1_000_000_000
-                t_render = now_ns()
-                if self._image_pub is not None:
-                    img = sim.render_frame(k)
-                    self._image_pub.put_bytes(images.raw_image(img, cap, cam.frame_id).SerializeToString())
-                elif self._vision_pub is not None:
-                    self._vision_pub.put_bytes(self._vision_payload(k, base))
+                if pub is not None:
+                    pub.put_bytes(payload)
                 self.counters.frames_published += 1
                 self.meter.count("frames_published")
-                self.meter.done((now_ns() - t_render) * 1e-6)
+                self.meter.done(took * 1e-6)
             loop_k += 1
             if not self.loop:
                 return

@@ -40,10 +40,11 @@ class FoxgloveBridge:
         self.port: int = server.port
         self.relayed = 0
         self.unknown_type = 0
+        self.skipped = 0  # payloads no Foxglove client subscribed to: never copied
         self._channels: dict[str, tuple[foxglove.Channel, str]] = {}
         self._schemas: dict[str, foxglove.Schema] = {}
         self._lock = threading.Lock()
-        self._sub = bus.subscribe_raw(key_expr, self._on_sample)
+        self._sub = bus.subscribe_raw(key_expr, self._on_sample, want=self._wanted)
 
     @classmethod
     def start(cls, bus: Bus, config: DashboardConfig) -> FoxgloveBridge:
@@ -82,6 +83,15 @@ class FoxgloveBridge:
             ch = foxglove.Channel(topic, schema=schema, message_encoding="protobuf", context=self.context)
             self._channels[topic] = (ch, type_name)
             return ch
+
+    def _wanted(self, info: SampleInfo) -> bool:
+        """A payload is copied out only for a channel a Foxglove client subscribes to (or one
+        not yet advertised): with no client, the camera's frames cost the dashboard nothing."""
+        known = self._channels.get(info.topic)
+        if known is None or known[0].has_sinks():
+            return True
+        self.skipped += 1
+        return False
 
     def _on_sample(self, payload: bytes, info: SampleInfo) -> None:
         ch = self._channel(info.topic, info.type_name) if info.type_name else None

@@ -7,6 +7,7 @@ import base64
 import json
 import struct
 import threading
+import time
 
 import pytest
 from google.protobuf import descriptor_pb2
@@ -49,6 +50,15 @@ def test_client_subscribes_to_fusion_state_and_receives_it(bus_pair_configs):
                 if bridge.relayed:
                     advertised.set()
                 assert k < 400, "the bridge never received fusion/state"
+            # no client subscribed: the payloads are not even copied out of the bus
+            relayed = bridge.relayed
+            for i in range(5):
+                pub.put(make_state(5_000 + i))
+            deadline = time.monotonic() + 10
+            while bridge.skipped < 5:
+                assert time.monotonic() < deadline, bridge.skipped
+                time.sleep(0.02)  # the bus's callbacks run on its threads: nothing to wait on
+            assert bridge.relayed == relayed
             with connect(f"ws://127.0.0.1:{bridge.port}", subprotocols=[SUBPROTOCOL]) as ws:
                 assert _recv_json(ws, "serverInfo")["name"] == "tiplog"
                 channels = _recv_json(ws, "advertise")["channels"]
