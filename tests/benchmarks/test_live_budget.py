@@ -1,0 +1,50 @@
+"""live_budget's per-second table and its targets, from made-up events (no system runs here)."""
+
+from __future__ import annotations
+
+from benchmarks.live_budget import Seconds, _per_second, demo_config
+from tiplog.loadstatus import LoadMeter
+from tiplog.v1 import fusion_pb2
+
+S = 1_000_000_000
+
+
+def test_each_second_counts_what_happened_in_it_and_the_targets_follow():
+    acc = Seconds()
+    acc.t0_ns = 10 * S
+    acc.add("state", 9 * S, 30.0)  # before the measurement: left out
+    for k in range(3):
+        for i in range(200 if k != 1 else 150):
+            acc.add("gyro", acc.t0_ns + k * S + i * 5_000_000)
+            acc.add("state", acc.t0_ns + k * S + i * 5_000_000, 31.0)
+        for i in range(12):
+            acc.add("vision", acc.t0_ns + k * S + i * 80_000_000, 120.0)
+        for i in range(30):
+            acc.add("display_lag", acc.t0_ns + k * S + i * 33_000_000, 40.0 if k != 2 else 90.0)
+        d = fusion_pb2.FusionDiagnostics(resets=0)
+        d.updates["reacquire"] = 1 if k == 2 else 0
+        d.innovation_nis["vision_axis"] = 5.0
+        acc.samples["fusion/diagnostics:msg"][k].append(d)
+        m = LoadMeter("vision", 15.0)
+        m.counts["frames_dropped_stale"] = 3 * k
+        acc.samples["vision/status:msg"][k].append(m.status(k * S))
+    r = _per_second(acc, 3)
+    rows, s = r["per_second"], r["summary"]
+    assert [x["state_hz"] for x in rows] == [200, 150, 200] and [x["gyro_hz"] for x in rows] == [200, 150, 200]
+    assert [x["vision_hz"] for x in rows] == [12, 12, 12]
+    assert [x["vision_dropped_stale"] for x in rows] == [0, 3, 3]  # per second, from the running count
+    assert [x["reacquisitions"] for x in rows] == [0, 0, 1]
+    assert s["seconds_under_195"] == 1 and s["reacquisitions"] == 1 and s["vision_dropped_stale"] == 6
+    t = s["targets"]
+    assert not t["fusion >= 195 Hz every second"] and not t["no re-acquisition or reset"]
+    assert not t["display lag p95 <= 50 ms"]  # a third of the states at 90 ms
+    assert t["vision >= 10 obs/s"] and t["vision latency p95 <= 250 ms"] and t["vision-axis NIS within x2 of 4"]
+
+
+def test_the_demo_configuration_moves_only_where_it_runs(tmp_path):
+    cfg = demo_config(tmp_path, fresh=True)
+    assert cfg["bench"]["camera_tier"] == "pixel" and cfg["bench"]["scenario"] == "demo"
+    assert cfg["sensor_gateway"]["port"] == cfg["bench"]["device_link"] == str(tmp_path / "device")
+    assert cfg["dashboard"]["foxglove_bridge"] and cfg["dashboard"]["port"] != 8000
+    assert cfg["bench"]["pass_cache_dir"] == str(tmp_path / "pass-cache")
+    assert "pass_cache_dir" not in demo_config(tmp_path, fresh=False)["bench"]
