@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -121,7 +122,7 @@ def _websocket(url: str, acc: Seconds, stop: threading.Event) -> None:
             _ = e
 
 
-def run(seconds: float, load: bool, fresh: bool, startup_only: bool) -> dict:
+def run(seconds: float, load: bool, fresh: bool, startup_only: bool, keep: str | None = None) -> dict:
     spin = subprocess.Popen([sys.executable, "-c", SPIN]) if load else None
     try:
         with tempfile.TemporaryDirectory(prefix="tiplog-budget-") as d:
@@ -130,7 +131,12 @@ def run(seconds: float, load: bool, fresh: bool, startup_only: bool) -> dict:
             env = {}
             if fresh:
                 env["NUMBA_CACHE_DIR"] = str(tmp / "numba-cache")
-            return _measure(tmp, cfg, env, seconds, startup_only) | {"load": load, "fresh": fresh}
+            r = _measure(tmp, cfg, env, seconds, startup_only) | {"load": load, "fresh": fresh}
+            if keep:
+                Path(keep).mkdir(parents=True, exist_ok=True)
+                for f in sorted((tmp / "rec").glob("*.mcap")):
+                    shutil.move(str(f), Path(keep) / f.name)
+            return r
     finally:
         if spin is not None:
             spin.kill()
@@ -357,10 +363,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--startup-only", action="store_true", help="stop at the first state on the page")
     ap.add_argument("--json", metavar="OUT", help="write the figures (per second and summary) to this file")
     ap.add_argument("--log", metavar="FILE", help="copy tiplog up's log up to the first state to this file")
+    ap.add_argument("--keep", metavar="DIR", help="move the run's recording into this folder")
     a = ap.parse_args(argv)
     if a.log:
         _LOG.append(a.log)
-    r = run(a.seconds, a.load, a.fresh, a.startup_only)
+    r = run(a.seconds, a.load, a.fresh, a.startup_only, a.keep)
     _print(r)
     if a.json:
         Path(a.json).write_text(json.dumps(r, indent=1, default=float))
