@@ -1,7 +1,7 @@
 """The demo under `tiplog up` on this machine, second by second, against the real-time targets:
 fusion never behind the gyro, the display fresh, vision useful, nothing reset by load.
 
-    python -m benchmarks.live_budget [--seconds 300] [--load] [--json OUT]
+    python -m benchmarks.live_budget [--seconds 300] [--load] [--json OUT] [--set vision.workers=1]
     python -m benchmarks.live_budget --startup-only [--fresh]      # time to the first estimate
 
 The configuration is `config/demo.yaml` (pixel tier, every service) with its ports, device link
@@ -122,12 +122,18 @@ def _websocket(url: str, acc: Seconds, stop: threading.Event) -> None:
             _ = e
 
 
-def run(seconds: float, load: bool, fresh: bool, startup_only: bool, keep: str | None = None) -> dict:
+def run(
+    seconds: float, load: bool, fresh: bool, startup_only: bool, keep: str | None = None, sets: list[str] = ()
+) -> dict:
     spin = subprocess.Popen([sys.executable, "-c", SPIN]) if load else None
     try:
         with tempfile.TemporaryDirectory(prefix="tiplog-budget-") as d:
             tmp = Path(d)
             cfg = demo_config(tmp, fresh)
+            for item in sets:  # SECTION.FIELD=VALUE, the value as YAML
+                key, _, value = item.partition("=")
+                section, _, field = key.partition(".")
+                cfg.setdefault(section, {})[field] = yaml.safe_load(value)
             env = {}
             if fresh:
                 env["NUMBA_CACHE_DIR"] = str(tmp / "numba-cache")
@@ -364,10 +370,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", metavar="OUT", help="write the figures (per second and summary) to this file")
     ap.add_argument("--log", metavar="FILE", help="copy tiplog up's log up to the first state to this file")
     ap.add_argument("--keep", metavar="DIR", help="move the run's recording into this folder")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="configuration override")
     a = ap.parse_args(argv)
     if a.log:
         _LOG.append(a.log)
-    r = run(a.seconds, a.load, a.fresh, a.startup_only, a.keep)
+    r = run(a.seconds, a.load, a.fresh, a.startup_only, a.keep, a.set)
     _print(r)
     if a.json:
         Path(a.json).write_text(json.dumps(r, indent=1, default=float))
