@@ -272,6 +272,9 @@ def _per_second(acc: Seconds, n: int) -> dict:
             row["resets"] = delta("resets", d.resets)
             row["queue_drops"] = delta("queue_drops", d.queue_drops)
             row["nis_vision_axis"] = d.innovation_nis.get("vision_axis", float("nan"))
+            row["noise_scale_vision_axis"] = d.noise_scale.get("vision_axis", float("nan"))
+            row["vision_axis_updates"] = d.updates.get("vision_axis", 0)
+            row["vision_axis_rejected"] = sum(v for k, v in d.rejected.items() if k.startswith("vision_axis:"))
         if vst:
             row["vision_dropped_stale"] = delta("stale", vst[-1].counts.get("frames_dropped_stale", 0))
             row["vision_own_p95_ms"] = vst[-1].latency_p95_ms  # arrival at vision to observation out
@@ -305,6 +308,17 @@ def _summary(acc: Seconds, rows: list[dict]) -> dict:
         "resets": sum(r.get("resets", 0) for r in rows),
         "fusion_queue_drops": sum(r.get("queue_drops", 0) for r in rows),
         "nis_vision_axis_last": nis[-1] if nis else float("nan"),
+        # fusion's noise matching: the factor it applies to the vision axis' assumed variance, and
+        # its updates applied and rejected since fusion started
+        "noise_scale_vision_axis_last": next(
+            (r["noise_scale_vision_axis"] for r in reversed(rows) if "noise_scale_vision_axis" in r), float("nan")
+        ),
+        "vision_axis_updates": next(
+            (r["vision_axis_updates"] for r in reversed(rows) if "vision_axis_updates" in r), 0
+        ),
+        "vision_axis_rejected": next(
+            (r["vision_axis_rejected"] for r in reversed(rows) if "vision_axis_rejected" in r), 0
+        ),
     }
     t = TARGETS
     nis_last = s["nis_vision_axis_last"]
@@ -355,7 +369,9 @@ def _print(r: dict) -> None:
         f"p95 {s['vision_latency_p95_ms']:.0f} ms; {s['vision_dropped_stale']} frames dropped as stale\n"
         f"  camera (pixel tier): {s['camera_hz_mean']:.1f} frames/s, {s['camera_skipped_late']} skipped late, "
         f"behind in {s['camera_seconds_behind']} s\n"
-        f"  re-acquisitions {s['reacquisitions']}, resets {s['resets']}; vision-axis NIS {s['nis_vision_axis_last']:.1f}"
+        f"  re-acquisitions {s['reacquisitions']}, resets {s['resets']}; vision-axis NIS {s['nis_vision_axis_last']:.1f} "
+        f"(noise factor {s['noise_scale_vision_axis_last']:.1f}; {s['vision_axis_updates']} updates, "
+        f"{s['vision_axis_rejected']} rejected since fusion started)"
     )
     for name, ok in s["targets"].items():
         print(f"  {'met ' if ok else 'MISSED'}  {name}")
