@@ -61,7 +61,7 @@ _PAPER: dict[str, Any] = {
 # "Pixel tier in motion"): `harsh` about doubles every motion and episode source of `paper`.
 _RENDER_PAPER: dict[str, Any] = {
     "exposure_ms": 16.0,
-    "lens_error_sd_frac": 0.0045,
+    "lens_error_sd_frac": 0.002,
     "lens_k1_error_sd": 0.004,
     "shaft_tilt_sd_deg": 0.10,
     "occluder_rate_per_min": 1.0,
@@ -73,7 +73,7 @@ _RENDER_PAPER: dict[str, Any] = {
 }
 _RENDER_HARSH: dict[str, Any] = {
     "exposure_ms": 33.0,
-    "lens_error_sd_frac": 0.009,
+    "lens_error_sd_frac": 0.004,
     "lens_k1_error_sd": 0.008,
     "shaft_tilt_sd_deg": 0.20,
     "occluder_rate_per_min": 2.0,
