@@ -77,7 +77,7 @@ def test_live_bench_through_the_gateway(tier, bus_pair_configs, tmp_path):
             assert counted.wait(10), statuses[-1:]
             if tier == "pixel":  # the renderer yields; the device stream keeps its priority
                 nices = thread_nices(bench.pid)
-                assert os.nice(0) + 10 in nices and os.nice(0) in nices, nices
+                assert min(os.nice(0) + 10, 19) in nices and os.nice(0) in nices, nices  # 19: the ceiling
         finally:
             for p in (bench, gateway):
                 p.terminate()

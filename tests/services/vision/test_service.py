@@ -104,7 +104,7 @@ def test_frames_in_observations_out(mode, endpoint, rendered, camera):
             assert first.accepted, first.reject_reason
             # the workers yield to the other services; the rest of the process keeps its priority
             nices = thread_nices(proc.pid)
-            assert nices.count(os.nice(0) + 10) >= 2 and os.nice(0) in nices, nices
+            assert nices.count(min(os.nice(0) + 10, 19)) >= 2 and os.nice(0) in nices, nices  # 19: the ceiling
 
             # bad frames: rejected with their reason, and the service carries on
             pub_img.put(raw_image(frames[0][:360, :640].copy(), 2_000))
