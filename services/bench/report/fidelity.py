@@ -319,16 +319,15 @@ GROSS_JUNCTION_MM = 5.0
 MIN_RESIDUAL_POSES = 5  # distinct rest poses for the held-out residual rows (as the accel's pose-locked row)
 
 
-def _rest_poses(s: Session) -> int:
+def _rest_poses(s: Session, wins) -> int:
     """Distinct poses among the session's rest windows."""
-    wins = rest_windows(s)
     if not wins:
         return 0
     keys = np.asarray([pose_key(s, np.array([(w[0] + w[1]) // 2])) for w in wins])
     return int(cluster_poses(keys).max() + 1)
 
 
-def vision_rows(s: Session) -> list[Row]:
+def vision_rows(s: Session, wins) -> list[Row]:
     v = s.vision
     na = [
         ("vision tangent-plane residual", "deg", "0.11 held out", 0.08, 0.15),
@@ -395,7 +394,7 @@ def vision_rows(s: Session) -> list[Row]:
     # the paper's held-out residuals are across the static protocol's poses, and vision's error
     # is mostly pose-locked: frames at rest at one or two poses (a dynamic session's neutral
     # holds) hold one draw of it, and the junction's draw is in the mean offset
-    npose = _rest_poses(s)
+    npose = _rest_poses(s, wins)
     if at_rest and npose < MIN_RESIDUAL_POSES:
         for r in residuals:
             if r.value is not None:
@@ -470,7 +469,7 @@ def report(path: str | Path) -> dict[str, Any]:
         + tof_rows(s, wins)
         + latency_rows(s)
         + [gyro_drift_row(s)]
-        + vision_rows(s)
+        + vision_rows(s, wins)
         + motion_rows(s)
         + [mag_row(s)]
     )
