@@ -1,6 +1,7 @@
 """`tiplog`: the one entry point. Each subcommand's arguments and work live in the package that
-owns it (imported only when that subcommand is chosen or for --help), so `tiplog --help`
-stays fast and a missing optional dependency only affects its own subcommand."""
+owns it, imported only when that subcommand is chosen (`tiplog --help` lists them all from
+`COMMANDS` alone), so the top-level help stays fast and a missing optional dependency only
+affects its own subcommand."""
 
 from __future__ import annotations
 
@@ -42,7 +43,33 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Unparsable(Exception):
+    pass
+
+
+class _PreParser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise _Unparsable(message)
+
+
+def chosen_command(argv: Sequence[str] | None) -> str | None:
+    """The subcommand a command line names (None: none, or not one of `COMMANDS`), read with the
+    top-level options as the full parser reads them (abbreviations included)."""
+    pre = _PreParser(prog="tiplog", add_help=False)
+    pre.add_argument("--version", action="store_true")
+    pre.add_argument("--log-level")
+    pre.add_argument("command", nargs="?")
+    pre.add_argument("rest", nargs=argparse.REMAINDER)
+    try:
+        ns, _ = pre.parse_known_args(sys.argv[1:] if argv is None else list(argv))
+    except _Unparsable:
+        return None
+    return ns.command if ns.command in COMMANDS else None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole parser, with `command`'s own arguments (its module imported); every other
+    subcommand is there by name and help only. `command="all"` registers every one."""
     parser = Parser(
         prog="tiplog",
         description="Record how a hand-held laparoscopic instrument moves: IMU, ToF and camera fused under the trocar's remote centre of motion.",
@@ -52,12 +79,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (module, help_) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
-        importlib.import_module(module).register(p)
+        if command in (name, "all"):
+            importlib.import_module(module).register(p)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(chosen_command(argv))
     args = parser.parse_args(argv)
     setup_logging(args.log_level)
     func = getattr(args, "func", None)

@@ -1,8 +1,11 @@
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
-from tiplog.cli import COMMANDS, build_parser, main
+from tiplog.cli import COMMANDS, build_parser, chosen_command, main
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
@@ -17,10 +20,71 @@ def test_every_subcommand_has_help(command, capsys):
 
 def test_top_level_help_lists_all_subcommands(capsys):
     with pytest.raises(SystemExit):
-        build_parser().parse_args(["--help"])
+        main(["--help"])
     out = capsys.readouterr().out
-    for c in COMMANDS:
+    for c, (_, help_) in COMMANDS.items():
         assert c in out
+        assert help_[:40] in " ".join(out.split()), help_
+
+
+def test_every_subcommand_registers(capsys):
+    """The lazy path must not hide a module that no longer imports or registers."""
+    with pytest.raises(SystemExit) as e:
+        build_parser("all").parse_args(["--help"])
+    assert e.value.code == 0
+    assert "fusion" in capsys.readouterr().out
+
+
+_HEAVY = ("numba", "torch", "scipy", "cv2", "services")
+
+
+def test_top_level_help_imports_no_subcommand_module():
+    """`tiplog --help` lists the commands from their names alone: no subcommand's package, no numba
+    kernels, no torch. A fresh interpreter, so that this test session's imports do not count."""
+    code = (
+        "import sys\n"
+        "from tiplog.cli import main\n"
+        "try:\n"
+        "    main(['--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print(sorted({{m.split('.')[0] for m in sys.modules}} & set({_HEAVY!r})))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert "fusion" in r.stdout  # the help was printed
+    assert r.stdout.strip().splitlines()[-1] == "[]", r.stdout.splitlines()[-1]
+
+
+def test_a_chosen_subcommand_imports_its_own_module_only():
+    code = (
+        "import sys\n"
+        "from tiplog.cli import main\n"
+        "try:\n"
+        "    main(['info', '--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('services.')))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    mods = r.stdout.strip().splitlines()[-1]
+    assert "services.recorder.info_cli" in mods
+    assert "services.fusion" not in mods and "services.vision" not in mods, mods
+
+
+@pytest.mark.parametrize(
+    ("argv", "command"),
+    [
+        ([], None),
+        (["--help"], None),
+        (["fusion", "run", "x.mcap"], "fusion"),
+        (["--log-level", "DEBUG", "info", "x.mcap"], "info"),
+        (["--log=DEBUG", "sim", "generate"], "sim"),
+        (["bogus"], None),
+        (["--log-level"], None),
+    ],
+)
+def test_chosen_command(argv, command):
+    assert chosen_command(argv) == command
 
 
 @pytest.mark.parametrize(
