@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from tiplog.cliargs import finite, whole
+from tiplog.progress import Progress
 
 
 def register(p: argparse.ArgumentParser) -> None:
@@ -44,17 +45,11 @@ def register(p: argparse.ArgumentParser) -> None:
     r.set_defaults(func=_report)
 
 
-def _progress(quiet: bool):
+def _progress(p: Progress):
     t0 = time.perf_counter()
-    last = [""]
 
     def show(stage: str, frac: float) -> None:
-        if quiet:
-            return
-        line = f"\r[{time.perf_counter() - t0:7.1f} s] {stage:<8} {100 * frac:5.1f} %"
-        if line != last[0]:
-            print(line, end="" if stage != "done" else "\n", file=sys.stderr, flush=True)
-            last[0] = line
+        p.update(f"[{time.perf_counter() - t0:7.1f} s] {stage:<8} {100 * frac:5.1f} %", force=stage == "done")
 
     return show
 
@@ -74,10 +69,8 @@ def _generate(args: argparse.Namespace) -> int:
     if problem:
         raise UserError(problem)
     # Written under a temporary name and renamed when complete: Ctrl-C leaves nothing under --out.
-    with atomic_output(args.out, args.force) as tmp:
-        summary = generate(
-            sc, tmp, seed=args.seed, tier=args.tier, duration_s=args.duration, progress=_progress(args.quiet)
-        )
+    with atomic_output(args.out, args.force) as tmp, Progress(sys.stderr, enabled=not args.quiet) as p:
+        summary = generate(sc, tmp, seed=args.seed, tier=args.tier, duration_s=args.duration, progress=_progress(p))
     t = summary["timings"]
     print(
         f"{args.out}: {summary['duration_s']:.1f} s of {sc.protocol} ({summary['trials']} trials), "

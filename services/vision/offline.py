@@ -25,6 +25,7 @@ from tiplog.calibration import Calibration, CalibrationError
 from tiplog.camera_model import CameraModel
 from tiplog.images import decompress
 from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary
+from tiplog.progress import Progress
 from tiplog.userio import UserError
 from tiplog.v1 import vision_pb2
 
@@ -115,7 +116,7 @@ def run_file(
         obs.processed_stamp_ns = stamp + int(round(obs.processing_ms * 1e6))
         return obs
 
-    with McapWriter(out) as w:
+    with McapWriter(out) as w, Progress(sys.stderr, enabled=not quiet) as progress:
         for name, rec in read_metadata(src).items():
             w.add_metadata(name, rec)
         for res in ordered_map(observe, items(raw_messages(src)), workers, passthrough=lambda it: it[0] == "copy"):
@@ -128,12 +129,11 @@ def run_file(
             w.write("vision/observation", res, log_time_ns=res.header.stamp_ns, sequence=k)
             counts["frames"] += 1
             counts["accepted" if res.accepted else "rejected"] += 1
-            if not quiet and (k % 25 == 0 or k + 1 == total):
-                dt = time.perf_counter() - t0
-                print(f"\rframe {k + 1}/{total or '?'}  {(k + 1) / max(dt, 1e-9):5.1f} frames/s  "
-                      f"accepted {counts['accepted']}", end="", file=sys.stderr, flush=True)  # fmt: skip
-    if not quiet:
-        print(file=sys.stderr)
+            dt = time.perf_counter() - t0
+            progress.update(
+                f"frame {k + 1}/{total or '?'}  {(k + 1) / max(dt, 1e-9):5.1f} frames/s  accepted {counts['accepted']}",
+                force=k + 1 == total,
+            )
     secs = time.perf_counter() - t0
     return {**counts, "seconds": secs, "fps": counts["frames"] / secs if secs > 0 else 0.0}
 
