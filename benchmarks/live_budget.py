@@ -29,6 +29,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -42,7 +43,7 @@ import yaml
 
 from benchmarks.system_soak import proc_sample
 from tests.conftest import ROOT, free_port
-from tests.system.harness import VIEWER_TOKEN, UpRun
+from tests.system.harness import VIEWER_TOKEN, R, UpRun
 from tiplog.clock import now_ns
 
 SERVICES = ["bench", "sensor_gateway", "vision", "fusion", "recorder", "dashboard", "igtlink"]
@@ -191,6 +192,7 @@ def _measure(tmp: Path, cfg: dict, env: dict, seconds: float, startup_only: bool
             deadline = time.monotonic() + 600
             while "display_lag" not in acc.first or "state" not in acc.first:
                 up.check_alive()
+                _given_up(up)
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"no state in 600 s:\n{up.log_tail()}")
                 time.sleep(0.1)  # polling the collector, not synchronising the system
@@ -214,6 +216,7 @@ def _measure(tmp: Path, cfg: dict, env: dict, seconds: float, startup_only: bool
             end = t0 + seconds
             while time.monotonic() < end:
                 up.check_alive()
+                _given_up(up)
                 time.sleep(0.5)
             time.sleep(3.0)  # what the last second published, still on its way here
             cpu = {}
@@ -235,6 +238,15 @@ def _measure(tmp: Path, cfg: dict, env: dict, seconds: float, startup_only: bool
         **_per_second(acc, int(seconds)),
         "seconds": seconds,
     }
+
+
+def _given_up(up: UpRun) -> None:
+    """A service `tiplog up` gave up on (it kept failing at start): the run cannot measure the
+    demo, so it stops here with that service's last error line instead of waiting for states."""
+    st = up.latest_status()
+    failed = [r for r in st.services if r.state == R.SERVICE_RUN_STATE_FAILED] if st else []
+    if failed:
+        raise RuntimeError("; ".join(f"{r.service} given up on: {r.last_error}" for r in failed))
 
 
 _LOG: list[str] = []  # where to copy tiplog up's log at the first state (--log)
@@ -388,9 +400,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", metavar="DIR", help="move the run's recording into this folder")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="configuration override")
     a = ap.parse_args(argv)
+    if not a.seconds > 0:
+        ap.exit(2, f"live_budget: --seconds must be above 0 (got {a.seconds:g})\n")
+    for item in a.set:
+        key, eq, _ = item.partition("=")
+        if not eq or "." not in key or not all(key.partition(".")[::2]):
+            ap.exit(2, f"live_budget: --set wants SECTION.FIELD=VALUE (got {item!r})\n")
+    # A kill (SIGTERM) stops tiplog up and the load process as Ctrl-C does, instead of leaving them.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     if a.log:
         _LOG.append(a.log)
-    r = run(a.seconds, a.load, a.fresh, a.startup_only, a.keep, a.set)
+    try:
+        r = run(a.seconds, a.load, a.fresh, a.startup_only, a.keep, a.set)
+    except (RuntimeError, TimeoutError) as e:  # the system did not come up or stopped: no figures
+        print(f"live_budget: {e}", file=sys.stderr)
+        return 1
     _print(r)
     if a.json:
         Path(a.json).write_text(json.dumps(r, indent=1, default=float))

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from benchmarks.live_budget import Seconds, _per_second, demo_config
+import pytest
+
+from benchmarks.live_budget import Seconds, _given_up, _per_second, demo_config, main
 from tiplog.loadstatus import LoadMeter
-from tiplog.v1 import fusion_pb2
+from tiplog.v1 import fusion_pb2, system_pb2
 
 S = 1_000_000_000
 
@@ -48,3 +50,32 @@ def test_the_demo_configuration_moves_only_where_it_runs(tmp_path):
     assert cfg["dashboard"]["foxglove_bridge"] and cfg["dashboard"]["port"] != 8000
     assert cfg["bench"]["pass_cache_dir"] == str(tmp_path / "pass-cache")
     assert "pass_cache_dir" not in demo_config(tmp_path, fresh=False)["bench"]
+
+
+def test_bad_arguments_are_one_line_and_exit_2(capsys):
+    for argv, line in [
+        (["--seconds", "0"], "live_budget: --seconds must be above 0 (got 0)"),
+        (["--set", "vision.workers"], "live_budget: --set wants SECTION.FIELD=VALUE (got 'vision.workers')"),
+        (["--set", "workers=1"], "live_budget: --set wants SECTION.FIELD=VALUE (got 'workers=1')"),
+    ]:
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+        assert capsys.readouterr().err.splitlines() == [line]
+
+
+def test_a_service_given_up_on_ends_the_run_with_its_error():
+    R = system_pb2.ServiceRunState
+    st = system_pb2.SupervisorStatus()
+    st.services.add(service="bench", state=R.SERVICE_RUN_STATE_RUNNING)
+
+    class Up:
+        def latest_status(self):
+            return st
+
+    _given_up(Up())  # all running: nothing to say
+    st.services.add(
+        service="fusion", state=R.SERVICE_RUN_STATE_FAILED, last_error="config error: fusion: no calibration"
+    )
+    with pytest.raises(RuntimeError, match=r"^fusion given up on: config error: fusion: no calibration$"):
+        _given_up(Up())
