@@ -204,7 +204,7 @@ def _measure(tmp: Path, cfg: dict, env: dict, seconds: float, startup_only: bool
             if _LOG:
                 Path(_LOG[0]).write_text(log)
             startup["kernel_lines"] = [
-                ln.split("tiplog.fusion")[-1].strip() for ln in log.splitlines() if "kernels" in ln
+                ln.split("tiplog.fusion")[-1].lstrip(": ").strip() for ln in log.splitlines() if "kernels" in ln
             ]
             if startup_only:
                 return {"startup": startup}
