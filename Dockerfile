@@ -13,6 +13,6 @@ RUN pip install ".${EXTRAS:+[$EXTRAS]}"
 # The device and camera nodes are passed through by compose; dialout reads the serial port.
 RUN useradd --uid 1000 --groups dialout,video --no-create-home tiplog
 # Fusion's kernels compiled into that cache now (about half a minute), not on the cart while the
-# first samples queue behind them (services/fusion/warmup.py).
-RUN python -m services.fusion.warmup && chown -R tiplog /tmp/numba-cache
+# first samples queue behind them (services/fusion/live/warmup.py).
+RUN python -m services.fusion.live.warmup && chown -R tiplog /tmp/numba-cache
 USER tiplog

@@ -14,11 +14,11 @@ $(STAMP): pyproject.toml
 	touch $@
 
 # Fusion's compiled kernels into numba's cache at install, not at the first start, where they
-# take 40-90 s on two cores (services/fusion/warmup.py). numba keys its cache on kernels.py's
+# take 40-90 s on two cores (services/fusion/live/warmup.py). numba keys its cache on kernels.py's
 # modification time, and so does this target.
 KERNELS := $(VENV)/.kernels-ready
-$(KERNELS): $(STAMP) services/fusion/kernels.py
-	$(PY) -m services.fusion.warmup
+$(KERNELS): $(STAMP) services/fusion/eskf/kernels.py
+	$(PY) -m services.fusion.live.warmup
 	touch $@
 
 install: $(STAMP) $(KERNELS)

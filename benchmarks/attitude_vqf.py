@@ -100,7 +100,7 @@ def run_vqf(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray, tau_acc_s: float 
 
 
 def one(scenario: str, seed: int, duration: float | None, settle_s: float, work: Path, tau_acc_s: float) -> dict:
-    from services.fusion.attitude_cli import read_csv
+    from services.fusion.attitude.cli import read_csv
     from tiplog.cli import main as tiplog_main
 
     session = work / f"{scenario}_{seed}.mcap"

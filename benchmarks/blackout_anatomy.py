@@ -4,7 +4,7 @@ Without vision the heading (the turn about the vertical through the RCM) is held
 alone, and weakly by the ToF, which sees it mixed with the depth (`benchmarks.tof_heading`).
 The bench's gyro bias walks with the angular rate (bench facts: 89 deg accumulated over a
 102 s roll sweep), so what a blackout costs depends on how far the bias walked while vision
-was away. For every blackout of the `blackoutN` ablation (`services.fusion.ablation`; the
+was away. For every blackout of the `blackoutN` ablation (`study.ablation`; the
 paper's sixteen shared over the sessions given, or sixteen per session) this runs the filter
 (vision blanked, everything else as recorded) and, against the bench's truth (here, in the
 benchmark, never in an estimator), reports:
@@ -40,12 +40,12 @@ from pathlib import Path
 import numpy as np
 
 from services.bench.report.data import load, truth_p, truth_R
-from services.fusion.ablation import BLACKOUT_COUNT, blackout_spans, degrade, run_states, sessions_blackouts
-from services.fusion.calibrate_block import robot_body_rate
-from services.fusion.evaluation import EvaluationError, block_windows
-from services.fusion.params import Params
-from services.fusion.run_cli import iter_inputs
+from services.fusion.eskf.params import Params
+from services.fusion.offline.inputs import iter_inputs
+from study.ablation import BLACKOUT_COUNT, blackout_spans, degrade, run_states, sessions_blackouts
+from study.evaluation import EvaluationError, block_windows
 from tiplog.calibration import Calibration, CalibrationError
+from tiplog.calibration.block import robot_body_rate
 from tiplog.geometry import quat_to_rot, so3_log
 from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError

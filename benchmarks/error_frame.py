@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from services.bench.report.data import load, truth_p, truth_R
-from services.fusion.ablation import run_states
-from services.fusion.evaluation import EvaluationError, block_windows
-from services.fusion.params import Params
-from services.fusion.run_cli import iter_inputs
+from services.fusion.eskf.params import Params
+from services.fusion.offline.inputs import iter_inputs
+from study.ablation import run_states
+from study.evaluation import EvaluationError, block_windows
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError

@@ -2,11 +2,11 @@
 parameters: full fusion, sensor subsets, degraded vision, as the paper's tables.
 
 Subsets and degradations (`third`, `noise5`, `blackout1/3/10`, `junction_hidden`) are those of
-`services.fusion.ablation`: sixteen blackouts per session, or with `--shared-blackouts` the
+`study.ablation`: sixteen blackouts per session, or with `--shared-blackouts` the
 paper's sixteen shared over the sessions given in proportion to their blocks (the paper's were
 over one recording holding both the sweeps and the teleoperated blocks, so sixteen per session
 is the harsher reading; `tiplog evaluate --paper` reports both). The
-filter never sees the truth; scoring uses `services.fusion.evaluation` (first 20 % of each
+filter never sees the truth; scoring uses `study.evaluation` (first 20 % of each
 block excluded). `tiplog evaluate SESSION --ablations` runs the same variants in parallel.
 `smoothed` is the full fusion through the RTS smoother, as an archive gets it; `smoothed:NAME`
 smooths any subset or degradation (`smoothed:blackout10`: what 10 s blackouts cost an archive).
@@ -31,7 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from services.fusion.ablation import (
+from services.fusion.eskf.params import Params, ParamsError, parse_sensors
+from services.fusion.offline.inputs import iter_inputs
+from services.fusion.offline.smoother import smooth
+from study.ablation import (
     BLACKOUT_COUNT,
     DEGRADED,
     SUBSETS,
@@ -39,7 +42,7 @@ from services.fusion.ablation import (
     sessions_blackouts,
     variant_inputs,
 )
-from services.fusion.evaluation import (
+from study.evaluation import (
     Estimate,
     EvaluationError,
     block_errors_mm,
@@ -49,9 +52,6 @@ from services.fusion.evaluation import (
     paired_rmse_difference,
     score_continuous,
 )
-from services.fusion.params import Params, ParamsError, parse_sensors
-from services.fusion.run_cli import iter_inputs
-from services.fusion.smoother import smooth
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError

@@ -22,9 +22,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from services.fusion.params import Params
-from services.fusion.run_cli import iter_inputs
-from services.fusion.runner import OUTPUTS, FusionRunner
+from services.fusion.eskf.params import Params
+from services.fusion.offline.inputs import iter_inputs
+from services.fusion.timing.runner import OUTPUTS, FusionRunner
 from tiplog.calibration import Calibration
 from tiplog.mcap_io import read_metadata
 

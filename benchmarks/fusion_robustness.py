@@ -94,7 +94,7 @@ def _calibrate(seed: int, work: Path) -> Path:
 
 def _score(truth, states) -> dict[str, Any]:
     """Pooled scoring as `evaluation.score_continuous`, plus the 1-sigma coverage."""
-    from services.fusion.evaluation import Estimate, block_windows, score_continuous
+    from study.evaluation import Estimate, block_windows, score_continuous
 
     t = np.array([s.stamp_ns for s in states], np.int64)
     tip = np.array([s.p_tip_base_m for s in states], float).reshape(-1, 3)
@@ -113,10 +113,10 @@ def _score(truth, states) -> dict[str, Any]:
 
 
 def _evaluate(job: tuple[str, str, dict[str, float]]) -> dict[str, Any]:
-    from services.fusion.ablation import run_states, variant_inputs
-    from services.fusion.evaluation import block_windows, load_truth, paired_rmse_difference
-    from services.fusion.params import Params
-    from services.fusion.run_cli import iter_inputs
+    from services.fusion.eskf.params import Params
+    from services.fusion.offline.inputs import iter_inputs
+    from study.ablation import run_states, variant_inputs
+    from study.evaluation import block_windows, load_truth, paired_rmse_difference
     from tiplog.calibration import Calibration
 
     session, cal, params = job
@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fusion_robustness: {e}; rows: {', '.join(ROWS)}", file=sys.stderr)
         return 2
     try:
-        from services.fusion.params import Params
+        from services.fusion.eskf.params import Params
 
         params: dict[str, Any] = {}
         for k, v in (p.split("=", 1) for p in args.param):

@@ -87,7 +87,7 @@ def high_band(tr: dict, lo_hz: float = 15.0) -> dict[str, float]:
 
 def rest_attitude(tr: dict) -> np.ndarray:
     """Per-row rest flag of `attitude.AttitudeFilter`'s detector."""
-    from services.fusion.attitude import AttitudeFilter
+    from services.fusion.attitude.filter import AttitudeFilter
 
     f = AttitudeFilter()
     out = np.zeros(tr["t_s"].size, bool)
@@ -100,8 +100,8 @@ def rest_attitude(tr: dict) -> np.ndarray:
 def rest_tracking(tr: dict) -> np.ndarray:
     """Per-row flag of the tracking filter's detector: rows inside a chunk it released as rest
     (a gyro sample, then an accelerometer sample, per row, as the filter feeds it)."""
-    from services.fusion import kernels
-    from services.fusion.params import Params
+    from services.fusion.eskf import kernels
+    from services.fusion.eskf.params import Params
 
     p = Params()
     k = np.array(

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from services.fusion.metrics.assess import METRICS, MetricsParams, segment_metrics
-from services.fusion.metrics_cli import assess, public
-from services.fusion.metrics_data import load
+from services.fusion.skill.assess import METRICS, MetricsParams, segment_metrics
+from services.fusion.skill.cli import assess, public
+from services.fusion.skill.data import load
 
 
 def _pairs(specs: list[str]) -> list[tuple[Path, Path]]:

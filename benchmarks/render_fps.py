@@ -14,7 +14,7 @@ import numpy as np
 
 from services.bench.render.effects import RENDER_PROFILE_OVERRIDES, Episode, RenderSession
 from services.bench.render.renderer import RenderParams, get_scene, render_frame
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 NEUTRAL_FROM_VERTICAL_DEG = 28.6
 INSERTION_M = 0.14

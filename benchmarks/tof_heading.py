@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from services.bench.report.data import load, truth_p, truth_R
-from services.fusion.evaluation import EvaluationError, block_windows
+from study.evaluation import EvaluationError, block_windows
 from tiplog.mcap_io import read_metadata
 from tiplog.userio import UserError
 

@@ -37,8 +37,8 @@ import numpy as np
 from services.bench.render.effects import RENDER_PROFILE_OVERRIDES
 from services.bench.scenario import load_scenario
 from services.bench.simulation import simulate_session
-from tiplog import vision_geometry as vg
 from tiplog.config import ConfigError, parse_override
+from tiplog.geometry import vision as vg
 
 
 def _truth(sim, k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ import importlib
 import sys
 import traceback
 from collections.abc import Sequence
+from functools import partial
 from typing import NoReturn
 
 from tiplog import __version__
@@ -23,12 +24,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("services.bench.cli", "generate simulated sessions and fidelity reports"),
     "replay": ("services.recorder.replay_cli", "publish a recording back onto the bus"),
     "fusion": ("services.fusion.cli", "run the filter offline on a recording, with sensor subsets"),
-    "evaluate": ("services.fusion.evaluate_cli", "paper tables and plots against the ground truth"),
-    "calibrate": ("services.fusion.calibrate_cli", "fit calibration constants from a fit-only session"),
+    "evaluate": ("study.cli", "paper tables and plots against the ground truth"),
+    "calibrate": ("tiplog.calibration.cli", "fit calibration constants from a fit-only session"),
     "vision": ("services.vision.cli", "vision tools: train the segmentation network, run on a file"),
     "record": ("services.recorder.cli", "record the bus to MCAP; control a running recorder; recover a file"),
     "info": ("services.recorder.info_cli", "duration, topics, rates, counts, gaps and metadata of a recording"),
-    "metrics": ("services.fusion.metrics_cli", "skill-assessment metrics of a recording, with their uncertainty"),
+    "metrics": ("services.fusion.skill.cli", "skill-assessment metrics of a recording, with their uncertainty"),
     "export": ("tiplog.export.cli", "a recording's estimate as a LeRobot dataset, a Slicer sequence or CSV"),
 }
 
@@ -80,8 +81,21 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     for name, (module, help_) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
         if command in (name, "all"):
-            importlib.import_module(module).register(p)
+            try:
+                mod = importlib.import_module(module)
+            except ModuleNotFoundError as e:
+                if e.name != module.partition(".")[0]:
+                    raise
+                # the study package ships with the source tree, not the OR image
+                p.add_argument("args", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+                p.set_defaults(func=partial(_not_installed, e.name))
+                continue
+            mod.register(p)
     return parser
+
+
+def _not_installed(package: str, _args: argparse.Namespace) -> int:
+    raise UserError(f"the {package} package is not installed here (it comes with the source tree, not the OR image)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 log = logging.getLogger(__name__)
 

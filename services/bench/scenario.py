@@ -14,8 +14,8 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
 
 from services.bench.profiles import DEFAULT_PROFILE, PROFILES, profile_overrides
-from tiplog.camera_model import CameraModel
 from tiplog.config import ConfigError, format_validation_error, parse_override, read_yaml_file, set_path
+from tiplog.geometry.camera import CameraModel
 
 try:  # the robot helper's motion configuration (services/bench/motion.py)
     from services.bench.robot.motion import MotionConfig

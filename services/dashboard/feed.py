@@ -256,7 +256,7 @@ class BusFeed:
         cal = self.calibration
         if cal is None or not msg.junction_visible:
             return None
-        from tiplog.vision_geometry import axis_direction_from_normals, ray_axis_intersection
+        from tiplog.geometry.vision import axis_direction_from_normals, ray_axis_intersection
 
         u_cam = axis_direction_from_normals(_v3(msg.n_left), _v3(msg.n_right))
         _s, junction_cam, cond = ray_axis_intersection(_v3(msg.junction_ray), _v3(msg.axis_point_m), u_cam)

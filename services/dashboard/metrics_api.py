@@ -18,7 +18,7 @@ from fastapi import APIRouter, Depends, HTTPException, Response
 
 from services.dashboard.auth import Role
 from services.dashboard.feed import REF_COLUMNS, STATE_COLUMNS, BusFeed
-from services.fusion.metrics.assess import METRICS, MetricsParams, resample, segment_metrics
+from services.fusion.skill.assess import METRICS, MetricsParams, resample, segment_metrics
 from tiplog.clock import now_ns
 from tiplog.v1 import recorder_pb2
 

@@ -1,6 +1,6 @@
 import sys
 
-from services.fusion.app import main
+from services.fusion.live.app import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from services.fusion import attitude_cli, run_cli
+from services.fusion.attitude import cli as attitude_cli
+from services.fusion.offline import run as run_cli
 
 
 def register(p: argparse.ArgumentParser) -> None:

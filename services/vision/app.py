@@ -143,7 +143,7 @@ def body(ctx: ServiceContext[VisionConfig]) -> None:
 
     from services.vision.frames import FrameError, decode_frame
     from services.vision.preview import preview_message
-    from tiplog.camera_model import CameraModel
+    from tiplog.geometry.camera import CameraModel
     from tiplog.v1 import vision_pb2
 
     cfg, log = ctx.config, ctx.log

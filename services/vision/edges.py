@@ -5,7 +5,7 @@ coordinates (so the edges are straight lines there), and a trimmed total-least-s
 gives each line.
 
 Pixels: "distorted" are the image's own (u right, v down, origin at the top-left pixel's
-centre); "undistorted" those of the ideal pinhole with the same K (tiplog.camera_model). A
+centre); "undistorted" those of the ideal pinhole with the same K (tiplog.geometry.camera). A
 grid is a subsampled image: grid pixel (i, j) sits at distorted (j * step + offset, i * step +
 offset). Lines are (a, b, c) with a u + b v + c = 0 in undistorted pixels, (a, b) unit, positive
 inside the shaft.
@@ -19,7 +19,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 
 @lru_cache(maxsize=16)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 from tiplog.images import decompress
 from tiplog.mcap_io import read_messages
 

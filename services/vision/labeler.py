@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.vision import edges
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 # The junction is looked for along lines this far from the centre line, in half widths of the
 # shaft: outside the jaws (radius 1.7 of 2.59 mm, 0.66) and clear of the blurred edges, where
@@ -137,7 +137,7 @@ def _junction(
     """Junction (2,) in undistorted pixels, on the centre line: the mean position of the strongest
     dark -> bright steps along lines on either side of the centre line (JUNCTION_LINES) near the
     blob's distal end. Those lines meet the end rim at rho_s * JUNCTION_RIM_FRACTION nearer the
-    camera than the axis (tiplog.vision_geometry.junction_on_axis)."""
+    camera than the axis (tiplog.geometry.vision.junction_on_axis)."""
     m = lab.centre_line()
     g = np.array([m[1], -m[0]])
     if g @ blob.direction < 0:

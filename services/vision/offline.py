@@ -22,7 +22,7 @@ from services.vision.network import load_checkpoint
 from services.vision.overlap import ordered_map
 from services.vision.pipeline import Pipeline
 from tiplog.calibration import Calibration, CalibrationError
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 from tiplog.images import decompress
 from tiplog.mcap_io import McapWriter, raw_messages, read_metadata, read_summary
 from tiplog.progress import Progress

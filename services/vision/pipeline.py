@@ -2,7 +2,7 @@
 geometry -> a VisionObservation. No bus and no clock of its own: the service and `tiplog vision
 run` both call `Pipeline.process`, so live and offline results are the same.
 
-Geometry (camera frame, metres; tiplog.vision_geometry): the labeler's lines give the tangent
+Geometry (camera frame, metres; tiplog.geometry.vision): the labeler's lines give the tangent
 plane normals n_L, n_R (n_L x n_R along the shaft toward the tip), P0 = rho_s (n_L + n_R) /
 (1 + n_L.n_R); the junction seen in the image lies on the shaft's end rim nearest the camera,
 so it is moved onto the axis (junction_on_axis) and reported as the axis point's pixel and ray;
@@ -28,8 +28,8 @@ from services.vision.labeler import (
     label_mask,
     lines_from_blob,
 )
-from tiplog import vision_geometry as vg
-from tiplog.camera_model import CameraModel
+from tiplog.geometry import vision as vg
+from tiplog.geometry.camera import CameraModel
 from tiplog.v1 import vision_pb2
 
 if TYPE_CHECKING:  # torch is imported only where a network runs (`tiplog up` reads the config model)

@@ -10,7 +10,7 @@ import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from services.vision.pipeline import FrameResult
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 
 def _line_polyline(line: np.ndarray, cam: CameraModel, scale: float, n: int = 24) -> np.ndarray | None:

@@ -16,12 +16,12 @@ import cv2
 import numpy as np
 import pytest
 
-from services.fusion.calibrate_hand_eye import write_pose_csv
 from tests.conftest import ROOT, free_port
 from tests.services.fusion.sessions import sweeps_estimate_fixture, sweeps_session_fixture  # noqa: F401 (fixtures session, estimate)
-from tests.services.fusion.test_calibrate_hand_eye import _poses, _true_camera
-from tests.services.fusion.test_calibrate_intrinsics import _views
+from tests.tiplog.calibration.test_hand_eye import _poses, _true_camera
+from tests.tiplog.calibration.test_intrinsics import _views
 from tiplog.calibration import Calibration
+from tiplog.calibration.hand_eye import write_pose_csv
 from tiplog.cli import main
 from tiplog.mcap_io import read_metadata, read_summary
 
@@ -255,12 +255,12 @@ BEFORE_WORK = [
     ("fusion attitude {d}/imu.csv {d}/imu.csv --force", "imu.csv", "attitude"),
 ]
 WORK = {
-    "hand_eye": ["services.fusion.calibrate_hand_eye.read_pose_csv", "services.fusion.calibrate_hand_eye.fit_hand_eye"],
+    "hand_eye": ["tiplog.calibration.hand_eye.read_pose_csv", "tiplog.calibration.hand_eye.fit_hand_eye"],
     "intrinsics": [
-        "services.fusion.calibrate_intrinsics.iter_gray",
-        "services.fusion.calibrate_intrinsics.find_corners",
+        "tiplog.calibration.intrinsics.iter_gray",
+        "tiplog.calibration.intrinsics.find_corners",
     ],
-    "attitude": ["services.fusion.attitude_cli.read_csv", "services.fusion.attitude.estimate"],
+    "attitude": ["services.fusion.attitude.cli.read_csv", "services.fusion.attitude.filter.estimate"],
 }
 
 

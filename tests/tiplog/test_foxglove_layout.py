@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import re
 
-from services.fusion.publish import CHILD_FRAME, PARENT_FRAME
+from services.fusion.live.publish import CHILD_FRAME, PARENT_FRAME
 from tests.conftest import ROOT
 from tiplog.topics import TOPICS
 

@@ -1,4 +1,4 @@
-"""No import circle in the project: the modules of tiplog/, services/ and benchmarks/ (imports
+"""No import circle in the project: the modules of tiplog/, services/, study/ and benchmarks/ (imports
 at any depth, lazy ones included) form a graph without cycles, so each package can be read,
 tested and replaced from the bottom up."""
 
@@ -14,7 +14,7 @@ def module_graph(root: Path) -> dict[str, set[str]]:
     """module name -> project modules it imports (a `from pkg import name` counts as pkg.name
     when that is a module, else as pkg)."""
     files = {}
-    for top in ("tiplog", "services", "benchmarks"):
+    for top in ("tiplog", "services", "study", "benchmarks"):
         for p in (root / top).rglob("*.py"):
             name = ".".join(p.relative_to(root).with_suffix("").parts)
             files[name.removesuffix(".__init__")] = p

@@ -82,7 +82,7 @@ def _rcm(recording: Path, estimate: Path | None) -> np.ndarray | None:
 def _check_estimate_of(recording: Path, estimate: Path) -> None:
     """UserError when `estimate` is a `tiplog fusion run` of another recording (its recorded
     source fingerprint, else its source's name, differs)."""
-    from services.fusion.run_cli import source_fingerprint
+    from services.fusion.offline.inputs import source_fingerprint
 
     made = read_metadata(estimate).get("fusion", {})
     want = made.get("source_fingerprint")

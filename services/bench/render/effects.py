@@ -20,7 +20,7 @@ import numpy as np
 
 from services.bench.profiles import PROFILES
 from services.bench.render.geometry import InstrumentGeometry, silhouette_lines
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 # RenderParams values per bench profile (`clean` = the defaults): each profile's `render` section.
 RENDER_PROFILE_OVERRIDES: dict[str, dict[str, object]] = {

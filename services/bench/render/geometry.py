@@ -1,7 +1,7 @@
 """Exact geometry of the instrument for the pixel renderer: tangent planes, silhouette lines,
 ray casting against the shaft, its distal end face and the jaws.
 
-Frames: camera frame as in tiplog.camera_model (x right, y down, z forward, metres); the
+Frames: camera frame as in tiplog.geometry.camera (x right, y down, z forward, metres); the
 instrument axis is parametrised by s [m] along the tool z axis (distal positive) with s = 0 at
 the tip, so the shaft occupies s <= -junction and the jaws -junction <= s <= 0.
 Lines are (a, b, c) with a*u + b*v + c = 0 in undistorted pixels, a^2 + b^2 = 1, positive on
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 PART_NONE, PART_SHAFT, PART_END_FACE, PART_JAWS, PART_JAW_TIP = 0, 1, 2, 3, 4
 

@@ -39,7 +39,7 @@ from services.bench.render.instrument import (
     random_second_instrument,
 )
 from services.bench.render.scene import Scene
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
 RGB = tuple[Unit, Unit, Unit]

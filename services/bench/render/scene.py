@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from scipy.special import ndtri
 
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 TEXEL_MIN_M = 0.25e-3
 TEXTURE_MAX_TEXELS = 2048

@@ -21,8 +21,8 @@ from services.bench.report.data import Session, cluster_poses, in_window, load, 
 from services.bench.report.motion import FREE_MOTION_PROTOCOLS, motion_rows
 from services.bench.report.rows import REST_MMPS, Row, _row, tip_speed_mmps
 from services.bench.scenario import TofConfig
-from tiplog import vision_geometry as vg
 from tiplog.geometry import so3_exp, so3_log
+from tiplog.geometry import vision as vg
 
 G = 9.80665
 

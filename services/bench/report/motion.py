@@ -14,7 +14,7 @@ import numpy as np
 
 from services.bench.report.data import Session, truth_p, truth_R
 from services.bench.report.rows import REST_MMPS, Row, _row, tip_speed_mmps
-from tiplog import vision_geometry as vg
+from tiplog.geometry import vision as vg
 
 FREE_MOTION_PROTOCOLS = ("sweeps", "teleop", "demo")
 SPEED_BINS_MMPS = ((0.0, 2.0), (2.0, 10.0), (10.0, 20.0), (20.0, 30.0))

@@ -23,7 +23,7 @@ from services.bench.sensors import vision_motion as vm
 from services.bench.sensors.calibration import BenchConstants
 from services.bench.sensors.device import Kinematics, _interp, _interp_R, arrival, pose_field_at
 from services.bench.sensors.pose_field import PoseField
-from tiplog import vision_geometry as vg
+from tiplog.geometry import vision as vg
 
 
 @dataclass

@@ -8,7 +8,7 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from services.vision.app import NewestFrame
 from services.vision.frames import FrameError, decode_frame
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 from tiplog.images import raw_image
 
 CAM = CameraModel(8, 4, 10.0, 10.0, 4.0, 2.0)

@@ -8,7 +8,7 @@ import pytest
 from services.vision import edges
 from services.vision.labeler import JUNCTION_RIM_FRACTION, LabelerParams, label_frame, label_mask
 from tests.services.vision.conftest import JUNCTION_M, SHAFT_RADIUS_M
-from tiplog import vision_geometry as vg
+from tiplog.geometry import vision as vg
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -22,7 +22,7 @@ def test_tangent_planes_match_the_rendered_silhouette(rendered, camera):
         assert lab.ok, lab.reason
         n_l = vg.normal_from_image_line(lab.line_left, *K)
         n_r = vg.normal_from_image_line(lab.line_right, *K)
-        # left/right and orientation as the renderer (and tiplog.vision_geometry) define them
+        # left/right and orientation as the renderer (and tiplog.geometry.vision) define them
         assert _angle_deg(n_l, truth["n_left_cam"]) < 0.05
         assert _angle_deg(n_r, truth["n_right_cam"]) < 0.05
         assert np.cross(n_l, n_r) @ T[:3, 2] > 0  # n_L x n_R along the shaft toward the tip

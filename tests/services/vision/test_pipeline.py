@@ -12,7 +12,7 @@ from services.vision.network import load_checkpoint
 from services.vision.pipeline import Pipeline, PipelineParams
 from services.vision.preview import preview_message
 from tests.services.vision.conftest import JUNCTION_M, SHAFT_RADIUS_M
-from tiplog import vision_geometry as vg
+from tiplog.geometry import vision as vg
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from services.bench.render.renderer import RenderParams, get_scene, render_frame
-from tiplog.camera_model import CameraModel
+from tiplog.geometry.camera import CameraModel
 
 PINHOLE = CameraModel(1280, 720, 652.0, 651.0, 641.3, 358.7)
 D405 = CameraModel.d405_colour()

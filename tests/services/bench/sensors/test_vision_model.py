@@ -12,7 +12,7 @@ from services.bench.sensors import device as sensors
 from services.bench.sensors.calibration import true_constants
 from services.bench.sensors.vision_model import simulate_vision
 from tests.services.bench.synthetic_truth import pivot
-from tiplog import vision_geometry as vg
+from tiplog.geometry import vision as vg
 
 # Noise-free geometry: the clean profile, since every motion source of the others is an error.
 EXACT = {
