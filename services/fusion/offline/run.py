@@ -30,6 +30,7 @@ from services.fusion.offline.inputs import (
 from services.fusion.timing.runner import FusionRunner
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import McapWriter, read_summary
+from tiplog.progress import Progress
 from tiplog.userio import UserError, atomic_output, input_file, input_mcap, output_file
 
 log = logging.getLogger("tiplog.fusion")
@@ -82,17 +83,17 @@ def run_filter(src: Path, runner: FusionRunner, progress: bool = False) -> tuple
     out = []
     next_report = 0.1
     wall = time.monotonic()
-    for topic, msg, log_ns in iter_inputs(src, stats):
-        runner.feed(topic, msg, log_ns)
-        if topic == "device/gyro":
-            out.extend(runner.advance(log_ns))
-        frac = (log_ns - t0) / max(t1 - t0, 1)
-        if progress and frac >= next_report:
-            print(f"\rfusion {frac * 100:5.1f} %  {time.monotonic() - wall:6.1f} s", end="", file=sys.stderr)
-            next_report += 0.1
-    out.extend(runner.finish())
-    if progress:
-        print(f"\rfusion 100.0 %  {time.monotonic() - wall:6.1f} s", file=sys.stderr)
+    with Progress(sys.stderr, enabled=progress) as bar:
+        for topic, msg, log_ns in iter_inputs(src, stats):
+            runner.feed(topic, msg, log_ns)
+            if topic == "device/gyro":
+                out.extend(runner.advance(log_ns))
+            frac = (log_ns - t0) / max(t1 - t0, 1)
+            if frac >= next_report:  # every tenth of the recording: no string work per message
+                bar.update(f"fusion {frac * 100:5.1f} %  {time.monotonic() - wall:6.1f} s")
+                next_report += 0.1
+        out.extend(runner.finish())
+        bar.update(f"fusion 100.0 %  {time.monotonic() - wall:6.1f} s", force=True)
     return out, stats
 
 
