@@ -40,7 +40,7 @@ import numpy as np
 
 from services.fusion.eskf import kernels
 
-try:  # optional (extra `fast`): compiles the time loop, about 100x faster
+try:  # a dependency (compiles the time loop, about 100x faster); plain Python where it is absent
     from numba import njit
 
     HAVE_NUMBA = True

@@ -3,9 +3,9 @@ covariance), one Kalman update, and everything a gyro sample does in one call (`
 Pure numpy could not reach the offline speed target (a 120 s block in 2.4 s on one core, with
 every late vision frame re-propagated): each step is a handful of 16x16 products that numpy
 dispatches one call at a time. Small products are written out: numba would hand them to BLAS
-and LAPACK, whose calls cost more than the arithmetic at 3x3 and m <= 4. numba comes with the
-`fast` extra (`pip install tiplog[fast]`). The tests check
-both against plain numpy (F P F^T + Q, the textbook update).
+and LAPACK, whose calls cost more than the arithmetic at 3x3 and m <= 4. numba is a dependency
+of tiplog; `NUMBA_DISABLE_JIT=1` runs the same functions as plain Python (slow, same results).
+The tests check both against plain numpy (F P F^T + Q, the textbook update).
 
 Layout of the error state: [dp 0:3, dv 3:6, dtheta 6:9, db_g 9:12, db_a 12:15, db_rho 15].
 """
@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-try:  # the `fast` extra; without it the same functions run as plain Python (slow, same results)
+try:  # a dependency; the fallback keeps the module importable where numba cannot be installed
     from numba import njit
 except ImportError:  # pragma: no cover - exercised where numba is absent
 
