@@ -1,9 +1,11 @@
-"""`tiplog fusion`: the filter offline on a recording (`run`), and the IMU's attitude alone
-(`attitude`). Each action's arguments and work live in its own module."""
+"""`tiplog fusion`: the filter offline on a recording (`run`), the IMU's attitude alone
+(`attitude`), and the filter's built-in parameters (`params`). Each action's arguments and work
+live in its own module."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from services.fusion.attitude import cli as attitude_cli
 from services.fusion.offline import run as run_cli
@@ -19,3 +21,18 @@ def register(p: argparse.ArgumentParser) -> None:
             description=attitude_cli.__doc__,
         )
     )
+    pp = sub.add_parser(
+        "params",
+        help="the built-in filter parameters: a YAML file to start --params from",
+        description="Print the built-in filter parameters as a --params YAML file, each with its unit and "
+        "what it does; --markdown prints the parameter table of docs/fusion.md instead.",
+    )
+    pp.add_argument("--markdown", action="store_true", help="the table of docs/fusion.md instead of YAML")
+    pp.set_defaults(func=_params)
+
+
+def _params(args: argparse.Namespace) -> int:
+    from services.fusion.eskf.params import defaults_yaml, markdown_table
+
+    sys.stdout.write(markdown_table() if args.markdown else defaults_yaml())
+    return 0

@@ -3,14 +3,20 @@ live service and by `tiplog fusion run` alike.
 
 Units are in the field names. Noise densities are continuous-time (per sqrt(Hz) or
 per sqrt(s)); measurement sigmas are per update, already inflated for correlated samples as
-the paper's noise model prescribes (held-out residual times sqrt(N_c)). The values were tuned
+the paper's noise model prescribes (held-out residual times sqrt(N_c)). The values were set
 on bench sessions kept apart from every evaluation.
+
+Each field's docstring (the string under it) is its one-line description: `markdown_table`
+turns them into the table of docs/fusion.md, `defaults_yaml` into `tiplog fusion params`.
 """
 
 from __future__ import annotations
 
+import ast
+import inspect
 import math
 import numbers
+import textwrap
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -37,197 +43,231 @@ class ParamsError(ValueError):
 @dataclass(frozen=True)
 class Params:
     # --- timing -------------------------------------------------------------------------
-    output_delay_ms: float = 30.0  # published state held this far behind real time
-    history_ms: float = 1500.0  # snapshots kept for out-of-sequence rewinds
-    max_age_ms: float = 1000.0  # a measurement older than this on arrival is dropped
+    output_delay_ms: float = 30.0
+    """The display stream (live fusion/state) is held this far behind real time, so that IMU and ToF samples in flight
+    are in it."""
+    history_ms: float = 1500.0
+    """Snapshots kept for out-of-sequence rewinds; at least max_age_ms."""
+    max_age_ms: float = 1000.0
+    """A measurement older than this on arrival is dropped; also how far the settled stream lags."""
     # --- process noise ------------------------------------------------------------------
     gyro_noise_dps_rthz: float = 0.02
-    gyro_bias_rw_dps_rts: float = 0.003  # at rest
-    gyro_bias_rw_dps_rts_per_radps: float = 0.35  # extra, per rad/s of angular rate
-    accel_noise_mps2_rthz: float = 0.03  # includes the lever arm's angular-acceleration noise
-    # The accelerometer bias is small and stable (|a| within 0.06 % of g, self-recalibration off):
-    # estimated loosely it trades against tilt through the lever arm's unmodelled acceleration.
+    """Gyroscope white noise density."""
+    gyro_bias_rw_dps_rts: float = 0.003
+    """Gyro-bias random walk at rest."""
+    gyro_bias_rw_dps_rts_per_radps: float = 0.35
+    """Extra gyro-bias random walk per rad/s of angular rate: the BNO085's bias moves in motion."""
+    accel_noise_mps2_rthz: float = 0.03
+    """Accelerometer noise density, including the lever arm's angular-acceleration noise."""
     accel_bias_rw_mps2_rts: float = 0.00001
+    """Accelerometer-bias random walk, tight: the bias is small and stable, and loose it trades against tilt through the
+    lever arm's unmodelled acceleration."""
     tof_offset_rw_mm_rts: float = 1.5
-    # ... and, while it is estimated, by this much variance for every degree the tool turns: b_rho
-    # stands for the ToF's error at the present pose, and that error is pose-locked (3 mm across
-    # poses, 0.4 mm over repeats of one), so it changes as the beam moves over the target and not
-    # with time. Without it a fast pitch sweep leaks the changing error into the depth; 20 mm^2
-    # per degree lets b_rho follow the error over the field's few-degree correlation
+    """Random walk of the ToF range offset b_rho while it is estimated."""
     tof_offset_rw_mm2_per_deg: float = 20.0
-    alpha_window: int = 4  # gyro samples spanned by the angular-acceleration difference
-    # ... over at least this long: a loaded host's gateway can stamp a backlog of samples 1 ns
-    # apart, and a difference over nanoseconds is no angular acceleration (it threw the tip
-    # kilometres); over a shorter span the lever-arm term is left out for that sample
+    """Extra b_rho variance per degree the tool turns: the range's error is pose-locked, so it changes as the beam
+    moves, not with time."""
+    alpha_window: int = 4
+    """Gyro samples spanned by the angular-acceleration difference of the lever-arm term."""
     alpha_min_span_ms: float = 10.0
-    imu_gap_ms: float = 50.0  # propagating further than this without an IMU sample: see filter.propagate
-    # without IMU (ablation, and across IMU gaps for the velocity): random walks standing in
-    # for the gyro and accelerometer
+    """Least time that difference may span; over less (a backlog stamped 1 ns apart) the lever-arm term is left out for
+    that sample."""
+    imu_gap_ms: float = 50.0
+    """Propagating further than this without an IMU sample uses the no-IMU random walks below."""
     no_imu_rate_rw_dps_rts: float = 40.0
+    """Without IMU (ablation, IMU gaps): the random walk standing in for the gyro."""
     no_imu_accel_rw_mps2_rts: float = 0.3
-    # rest: the gyro bias straight from the gyroscope while the tool is still (VQF's rest
-    # detection and thresholds, as `fusion attitude`). Without it only vision sees the bias's
-    # vertical component, and the bias walks in motion: without vision the heading drifts on
-    # with whatever bias the last motion left, even when the tool has come to rest
+    """Without IMU: the random walk standing in for the accelerometer."""
     rest_bias: bool = True
-    rest_th_gyro_dps: float = 2.0  # every gyro sample within this of its low-pass ...
-    rest_th_accel_mps2: float = 0.5  # ... and every accelerometer sample within this of its own
-    rest_tau_ms: float = 500.0  # (their low-pass time constant)
-    rest_min_ms: float = 1500.0  # ... for this long: at rest
-    rest_chunk_ms: float = 500.0  # the mean rate over each chunk of rest measures the bias,
-    rest_agree_gyro_dps: float = 0.1  # once the next chunk's mean rate is within this of it
-    rest_agree_accel_mps2: float = 0.05  # and its mean specific force within this
-    # ... and while b_rho is held (no vision tip within the offset window) the rest moves the
-    # bias alone, taking no variance from the heading through its correlation with the bias
-    # (filter.update_rest): without vision nothing else observes the heading, and a rest must
-    # not move it; with vision it changes nothing
+    """At rest, measure the gyro bias from the gyro itself: without it only vision sees the bias's vertical part, and
+    the heading drifts at rest."""
+    rest_th_gyro_dps: float = 2.0
+    """Rest: every gyro sample within this of its low-pass (VQF's threshold)."""
+    rest_th_accel_mps2: float = 0.5
+    """Rest: every accelerometer sample within this of its low-pass (VQF's threshold)."""
+    rest_tau_ms: float = 500.0
+    """Time constant of the rest detector's low-passes."""
+    rest_min_ms: float = 1500.0
+    """Rest: the thresholds held this long."""
+    rest_chunk_ms: float = 500.0
+    """The mean rate over each chunk of rest is one bias measurement."""
+    rest_agree_gyro_dps: float = 0.1
+    """A chunk is used once the next chunk's mean rate is within this of it (a slow sway is not rest); about 3.5 sigma
+    of the device's noise."""
+    rest_agree_accel_mps2: float = 0.05
+    """... and its mean specific force within this; about 5 sigma of the device's noise."""
     rest_bias_only: bool = True
-    rest_sigma_dps: float = 0.01  # added to the chunk mean's noise: motion below the thresholds
+    """While b_rho is held, a rest moves the bias alone (Schmidt update), so that it does not shrink the heading's
+    variance through their correlation."""
+    rest_sigma_dps: float = 0.01
+    """Added to the chunk mean's noise: motion below the rest thresholds."""
     # --- initial uncertainty ------------------------------------------------------------
     init_gyro_bias_dps: float = 0.05
+    """Initial gyro-bias sigma."""
     init_accel_bias_mps2: float = 0.002
+    """Initial accelerometer-bias sigma (the device's bias is small)."""
     init_tof_offset_mm: float = 5.0
+    """Initial b_rho sigma."""
     init_position_mm: float = 2.0
+    """Initial tip-position sigma, from the first vision frame."""
     init_velocity_mps: float = 0.02
+    """Initial velocity sigma."""
     init_attitude_deg: float = 1.0
+    """Initial attitude sigma, from the first vision frame."""
     # --- measurements -------------------------------------------------------------------
     rcm_sigma_mm: float = 0.3
-    rcm_every: int = 1  # RCM pseudo-measurement every n-th gyro sample
+    """The RCM pseudo-measurement (the shaft passes the registered port): the trocar's held-out residual, inflated for
+    correlation."""
+    rcm_every: int = 1
+    """RCM update every n-th gyro sample."""
     gravity_sigma_deg: float = 1.0
-    gravity_sigma_per_excess: float = 20.0  # sigma grows by this many deg per unit | |a|/g - 1 |
-    # every n-th accelerometer sample (0: none). Each sample's tilt noise is white (0.3-0.55 deg),
-    # so every sample at the same standard deviation beats fewer samples each trusted more
+    """Gravity direction per accelerometer sample: each sample's tilt noise is white, so all samples at one sigma beat
+    fewer trusted more."""
+    gravity_sigma_per_excess: float = 20.0
+    """Gravity sigma grows by this many degrees per unit of | |a|/g - 1 | (down-weighted, never gated on the norm)."""
     gravity_every: int = 1
-    # ToF per sample: 3.2 mm white + 3 mm pose-locked at 100 Hz, inflated for the correlation;
-    # weighed less while vision tips also give the depth (the pose-locked part then only adds
-    # error), more while b_rho is held and the ToF is the only depth (blackouts, junction hidden)
+    """Gravity update every n-th accelerometer sample (0: none)."""
     tof_sigma_mm: float = 45.0
+    """ToF range sigma while vision tips also give the depth: its pose-locked error would only add error."""
     tof_sigma_held_mm: float = 14.0
+    """ToF range sigma while b_rho is held and the range is the depth: 3.2 mm white plus 3 mm pose-locked at 100 Hz,
+    inflated for correlation."""
     tof_min_mm: float = 20.0
+    """Ranges below this are not used."""
     tof_max_mm: float = 400.0
-    # b_rho estimated only within this of an independent vision tip (the paper: 2 s). Past it
-    # the ToF is the depth: held weight, the pose map. 250 ms is 4 frames at 15 frames/s: with
-    # 2 s the first 2 s of every gap in the tips ran on the weak ToF weight and the
-    # accelerometer alone
+    """Ranges above this are not used."""
     tof_offset_window_ms: float = 250.0
-    # the ToF's pose-locked error learnt while b_rho is free, used while it is held (tof_map.py)
+    """b_rho is estimated only within this of an independent vision tip (four frames at 15 frames/s); past it, it is
+    held."""
     tof_map: bool = True
+    """Record the ToF's pose-locked error while b_rho is free and predict ranges with it while b_rho is held."""
     tof_map_sigma_deg: float = 1.0
+    """The ToF map's kernel width in attitude."""
     tof_map_sigma_mm: float = 6.0
+    """The ToF map's kernel width in tip position."""
     tof_map_bin_ms: float = 50.0
-    # the whole of a procedure's last 10 min, not 120 s: the error stays where it was (0.4 mm over
-    # repeats of a pose), and a teleoperated block comes back to poses it left minutes before
+    """The ToF map records the mean residual and pose per bin of this length."""
     tof_map_window_s: float = 600.0
+    """The ToF map keeps this much of the past: the error stays where it was, and a procedure returns to poses minutes
+    later."""
     tof_map_prior_weight: float = 2.0
-    # where the map recorded little, its prediction is shrunk towards `TofMap.far_prior`, not
-    # the held b_rho: b_rho only within the error's correlation over the pose of where it was
-    # last learnt (these widths: the bench's ToF field, 4 deg and 8 mm, not tuned), the errors
-    # recorded within that correlation of the present pose further off (shrunk towards the
-    # mean as if it were tof_map_far_weight bins of 50 ms), their mean over the window further
-    # still (shrunk towards b_rho as if it were tof_map_mean_weight bins): a held b_rho is the
-    # error of one pose, and the further the tool has moved from it the less it says
+    """Kernel weight at which the map's value counts as much as its prior."""
     tof_map_far: bool = True
+    """Where the map recorded little, shrink towards what the field's correlation says there (`TofMap.far_prior`), not
+    towards the held b_rho."""
     tof_map_far_sigma_deg: float = 4.0
+    """The ToF error field's correlation width in attitude (the bench's field)."""
     tof_map_far_sigma_mm: float = 8.0
+    """The ToF error field's correlation width in tip position."""
     tof_map_far_weight: float = 10.0
+    """Weight, in bins, of the errors recorded within the field's correlation of the present pose."""
     tof_map_mean_weight: float = 200.0
-    # ... and where the newest tof_map_gp_bins bins (2 s) lie, far_prior is their regression at
-    # the pose, a Gaussian process with the field's correlation (the far widths), its 3 mm and
-    # a bin's noise (3.2 mm white over 5 ranges), about the errors recorded near: b_rho is a
-    # slow average that lags a changing error, and was held where the error went on changing.
-    # Held for a gap, the regression carries on the trend of the path into it. With fewer bins
-    # (the junction seen only briefly) b_rho as above. 0: off
+    """Weight, in bins, of the mean of every recorded error against the held b_rho."""
     tof_map_gp_bins: int = 40
+    """The newest this many bins are regressed at the present pose (a Gaussian process), following an error still
+    changing along the path; 0: off."""
     tof_map_gp_sigma_mm: float = 3.0
+    """That regression's prior sigma: the field's pose-locked error."""
     tof_map_gp_noise_mm: float = 1.5
-    # while b_rho is held the ToF's variance is tof_sigma_held^2 (1 + k w0 / (w + w0)), w the
-    # map's kernel weight at the pose and w0 its prior weight: where the map learnt nothing (and
-    # with no map, as without vision) the pose-locked error is unmodelled. k = 3 gives 28 mm
-    # per sample there: the 3 mm pose-locked error inflated for its correlation over 100 Hz
+    """That regression's noise per bin: 3.2 mm white over a bin's five ranges."""
     tof_unmapped_var_factor: float = 3.0
-    # it records only from a state tracked this long since its (re)initialisation, not one
-    # still converging from a single frame (a runner's reset also forgets what the map took
-    # from the diverging state after its last vision tip)
+    """While b_rho is held the range's variance grows by up to 1 + this where the map learnt nothing: the pose-locked
+    error is unmodelled there."""
     tof_map_settle_ms: float = 1000.0
-    # Without vision the depth is drawn to the working depth (its running mean over
-    # depth_ref_tau_s while vision came), depth_anchor_sigma_mm per depth_anchor_tau_s, so that
-    # the ToF's slow changes turn the heading back instead of moving the depth
-    # (`TrackingFilter._anchor_depth`); 0: off. 5 mm per 5 s is the teleoperated blocks' depth
-    # spread (SD 4-6 mm around the working depth) and a stroke's length
+    """The map learns only from a state tracked this long since its (re)initialisation, not one still converging."""
     depth_anchor_sigma_mm: float = 5.0
+    """Without vision the depth is drawn to the working depth with this sigma per depth_anchor_tau_s, so that slow range
+    changes turn the heading; 0: off."""
     depth_anchor_tau_s: float = 5.0
+    """The depth anchor's sigma holds per this much time, whatever the ToF's rate."""
     depth_ref_tau_s: float = 20.0
-    # with vision the pull's sigma is learnt: the depth's spread about the working depth (RMS
-    # over depth_ref_tau_s), not below depth_anchor_sigma_min_mm; depth_anchor_sigma_mm is the
-    # spread assumed until vision has shown one (and throughout without vision)
+    """The working depth is the depth's running mean over this long while vision came."""
     depth_anchor_learn_spread: bool = True
+    """With vision, the anchor's sigma is the depth's own spread about the working depth (depth_anchor_sigma_mm until
+    vision has shown one)."""
     depth_anchor_sigma_min_mm: float = 1.0
-    # The accelerometer's pose-locked error (its reading turned by a fraction of a degree that
-    # depends on the pose, the same on every pass) learnt as the ToF's is (tof_map.py): the
-    # gravity update's residual, recorded while b_rho is free (vision tips) and |f| is within
-    # accel_map_max_excess of g, in 50 ms bins over the last 120 s; the kernel-weighted mean at
-    # the present pose (2 deg, 8 mm: narrower than the error's 6 deg, 10 mm), looked up every
-    # accel_map_every_ms (the pose moves little in 40 ms), is taken off every sample, with
-    # vision or not
+    """The learnt anchor sigma is not below this: tighter drags the depth along when a blackout runs into a depth sweep."""
     accel_map: bool = True
+    """Learn the accelerometer's pose-locked tilt from gravity residuals while vision ties the pose, and take it off
+    every sample."""
     accel_map_sigma_deg: float = 2.0
+    """The accelerometer map's kernel width in attitude (narrower than the error's 6 deg correlation)."""
     accel_map_sigma_mm: float = 8.0
+    """The accelerometer map's kernel width in tip position."""
     accel_map_bin_ms: float = 50.0
+    """The accelerometer map records per bin of this length."""
     accel_map_window_s: float = 120.0
+    """The accelerometer map keeps this much of the past."""
     accel_map_prior_weight: float = 2.0
+    """Kernel weight at which the accelerometer map's value counts as much as its prior (zero)."""
     accel_map_every_ms: float = 40.0
+    """The correction is looked up this often: the pose moves little in between."""
     accel_map_max_excess: float = 0.03
+    """Gravity residuals are recorded only while |a| is within this fraction of g."""
     vision_plane_sigma_deg: float = 0.15
+    """Each tangent plane's normal: vision's held-out residual, inflated for its correlation between frames."""
     vision_offset_sigma_mm: float = 0.4
+    """The shaft axis' offset from each tangent plane."""
     vision_ray_sigma_mm: float = 1.0
-    # a junction whose depth is this far from the latest ToF range's (b_rho free) is refused:
-    # the labeler's gross errors (a wrong end of the shaft, 5-25 mm) otherwise pass the
-    # chi-square gate once the depth has grown uncertain between frames
+    """The tip normal to the junction's line of sight."""
     vision_tip_tof_gate_mm: float = 12.0
-    # a tip this surprising (NIS) is applied only once the next tip, within the window, is off
-    # the same way (residuals within the tolerance): a gross junction error is one frame, a
-    # drifted state shows in every frame. The tips' NIS runs far below its nominal mean of 2
-    # (the ray's 1 mm sigma covers the junction's pose-locked error), so 2 is already a
-    # surprise; 0 is off
+    """While b_rho is free, a junction whose depth is this far from the latest range's is refused: the labeler's gross
+    errors (5-25 mm)."""
     tip_confirm_chi2: float = 2.0
+    """A tip more surprising than this (NIS) waits for the next frame to agree; the tips' NIS runs far below 2, so 2 is
+    a surprise; 0: off."""
     tip_confirm_ms: float = 300.0
+    """The next tip must come within this to confirm a held one."""
     tip_confirm_mm: float = 3.0
+    """... and be off the same way, its residual within this of the held one's."""
     trocar_gate_mm: float = 3.5
-    gated_out_tip: bool = True  # use the tip (not the axis) of frames that fail the trocar gate
+    """A frame whose tangent planes miss the RCM by more than this gives its tip but not its axis."""
+    gated_out_tip: bool = True
+    """Use the tip of frames that fail the trocar gate."""
     junction_min_sin2: float = 0.45
+    """The junction ray is used only where it crosses the shaft at an angle whose sine squared is at least this (a
+    grazing ray gives no depth)."""
     vision_lock_ms: float = 500.0
+    """Vision counts as locked while a frame was accepted within this."""
     # --- innovation gating and divergence ----------------------------------------------
-    # innovation-based noise matching of the vision axis, the vision tip and the ToF
-    # (`TrackingFilter._adapt`): each stream's variance factor follows its NIS with this time
-    # constant, within [1, noise_adapt_max]; at the ceiling the stream is set aside until the
-    # factor halves. 0 switches it off
     noise_adapt_tau_s: float = 3.0
+    """Noise matching: each adaptive stream's variance factor follows its NIS with this time constant; 0: off."""
     noise_adapt_max: float = 100.0
+    """The factor's ceiling; at it the stream is set aside until the factor halves."""
     noise_adapt_step_max_ms: float = 200.0
-    gate_chi2_1: float = 10.83  # 99.9 % of chi2 with 1 degree of freedom
+    """One innovation moves the factor by at most this much time's worth."""
+    gate_chi2_1: float = 10.83
+    """Innovation gate, 1 degree of freedom (99.9 %)."""
     gate_chi2_2: float = 13.82
+    """Innovation gate, 2 degrees of freedom (99.9 %)."""
     gate_chi2_4: float = 18.47
+    """Innovation gate, 4 degrees of freedom (99.9 %)."""
     gate_chi2_3: float = 16.27
-    # without vision the tip is held within the physical insertion range along the shaft
+    """Innovation gate, 3 degrees of freedom (99.9 %)."""
     depth_min_m: float = 0.02
+    """Without vision the tip is held at least this deep along the shaft (the physical insertion range)."""
     depth_max_m: float = 0.40
-    reset_after_vision_rejections: int = 15  # consecutive rejected vision frames -> divergence
-    # after a reset, restart from the IMU and ToF (as without vision) if no vision frame could
-    # restart the filter within this long: depth and inclination stay on display through a long
-    # loss of view; 0 waits for vision
+    """... and at most this deep."""
+    reset_after_vision_rejections: int = 15
+    """This many vision frames rejected in a row is a divergence."""
     restart_without_vision_ms: float = 1000.0
-    # the depth a start without vision assumes, and then holds as the working depth (the paper's
-    # operators kept 130-150 mm): the range alone cannot tell it from the heading
+    """After a reset, restart from IMU and ToF if no vision frame restarted the filter within this; 0 waits for vision."""
     start_depth_mm: float = 140.0
-    # re-acquisition: this many frames in a row that pass the trocar gate but fail the axis'
-    # innovation gate, and agree with each other (the same heading/position correction within
-    # the tolerances below, over at most the window), move the state onto vision directly
+    """The depth a start without vision assumes and holds as the working depth: the range alone cannot tell depth from
+    heading."""
     reacquire_frames: int = 4
+    """Re-acquisition: this many frames that pass the trocar gate, fail the axis gate and agree move the state onto
+    vision."""
     reacquire_window_ms: float = 1000.0
+    """... within this long."""
     reacquire_agree_deg: float = 2.0
+    """... agreeing on the heading correction within this."""
     reacquire_agree_mm: float = 6.0
+    """... and on the tip shift within this."""
     max_position_sigma_mm: float = 200.0
-    max_speed_mps: float = 2.0  # a faster tip is a diverged state (hand-held: well under 1 m/s)
+    """A position sigma above this is a divergence."""
+    max_speed_mps: float = 2.0
+    """A faster tip is a divergence (hand-held: well under 1 m/s)."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -336,3 +376,73 @@ def mode_name(sensors: frozenset[str]) -> str:
     if sensors == SENSORS:
         return "full"
     return "_".join(s for s in ("imu", "tof", "vision") if s in sensors) + "_only" * (len(sensors) == 1)
+
+
+# --- the parameter table (docs/fusion.md) and the YAML of defaults (`tiplog fusion params`) ---------
+_UNITS = (
+    ("_dps_rts_per_radps", "deg/s/sqrt(s) per rad/s"),
+    ("_dps_rthz", "deg/s/sqrt(Hz)"),
+    ("_dps_rts", "deg/s/sqrt(s)"),
+    ("_mps2_rthz", "m/s^2/sqrt(Hz)"),
+    ("_mps2_rts", "m/s^2/sqrt(s)"),
+    ("_mm2_per_deg", "mm^2/deg"),
+    ("_mm_rts", "mm/sqrt(s)"),
+    ("_mps2", "m/s^2"),
+    ("_mps", "m/s"),
+    ("_dps", "deg/s"),
+    ("_deg", "deg"),
+    ("_mm", "mm"),
+    ("_ms", "ms"),
+    ("_m", "m"),
+    ("_s", "s"),
+)
+
+
+def unit(name: str) -> str:
+    """A parameter's unit, read from its name's suffix ("" for counts, factors and switches)."""
+    return next((u for suffix, u in _UNITS if name.endswith(suffix)), "")
+
+
+def field_docs() -> dict[str, str]:
+    """Each field's one-line description: the string literal under it in `Params`."""
+    cls = ast.parse(textwrap.dedent(inspect.getsource(Params))).body[0]
+    if not isinstance(cls, ast.ClassDef):
+        raise TypeError("Params' source is not a class")
+    out: dict[str, str] = {}
+    for node, after in zip(cls.body, cls.body[1:], strict=False):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(after, ast.Expr)
+            and isinstance(after.value, ast.Constant)
+            and isinstance(after.value.value, str)
+        ):
+            out[node.target.id] = " ".join(after.value.value.split())
+    return out
+
+
+def _value(v: Any) -> str:
+    return ("true" if v else "false") if isinstance(v, bool) else f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def markdown_table() -> str:
+    """The parameter table of docs/fusion.md: name, unit, default, what it does."""
+    docs = field_docs()
+    rows = ["| parameter | unit | default | what it does |", "| --- | --- | --- | --- |"]
+    for f in fields(Params):
+        what = docs.get(f.name, "").replace("|", "\\|")
+        rows.append(f"| `{f.name}` | {unit(f.name)} | {_value(f.default)} | {what} |")
+    return "\n".join(rows) + "\n"
+
+
+def defaults_yaml() -> str:
+    """The built-in parameters as a `--params` file, each with its unit and description."""
+    docs = field_docs()
+    out = [
+        "# tiplog fusion parameters: the built-in set. Keep the lines you change; pass with --params.",
+        "fusion_params:",
+    ]
+    for f in fields(Params):
+        u = unit(f.name)
+        out.append(f"  {f.name}: {_value(f.default)}  # {f'[{u}] ' if u else ''}{docs.get(f.name, '')}")
+    return "\n".join(out) + "\n"
