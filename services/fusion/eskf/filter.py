@@ -24,6 +24,7 @@ import numpy as np
 from services.fusion.eskf import kernels
 from services.fusion.eskf.init import closest_params, initial_rotation, perp_basis
 from services.fusion.eskf.maps import AccelMap, TofMap
+from services.fusion.eskf.measurement import VisionObservation
 from services.fusion.eskf.params import SENSORS, Params
 from tiplog.calibration import Calibration
 
@@ -254,13 +255,13 @@ class TrackingFilter:
         s.noise = noise_init()
         return s
 
-    def init_from_vision(self, t_ns: int, obs: dict, f_imu: np.ndarray | None) -> State | None:
+    def init_from_vision(self, t_ns: int, obs: VisionObservation, f_imu: np.ndarray | None) -> State | None:
         """A state from one vision frame with a visible junction (shaft direction from the mean
         tangent plane and the plane through the RCM and the junction ray, depth from the ray),
         roll from the accelerometer's gravity; None when the frame cannot serve."""
-        if not obs["junction_visible"]:
+        if not obs.junction_visible:
             return None
-        n_l, n_r, d = obs["n_left"], obs["n_right"], obs["ray"]
+        n_l, n_r, d = obs.n_left, obs.n_right, obs.ray
         rho = self.c.shaft_radius_m
         if max(abs(n_l @ self.rcm_cam - rho), abs(n_r @ self.rcm_cam - rho)) > self.prm.trocar_gate_mm * 1e-3:
             return None
@@ -634,7 +635,7 @@ class TrackingFilter:
             s.p = s.p + (Lc - L) * s.R[:, 2]
             _bump(s.counts, "clamped:depth")
 
-    def update_vision(self, s: State, obs: dict) -> bool:
+    def update_vision(self, s: State, obs: VisionObservation) -> bool:
         """One accepted frame (camera frame: normals n_left/n_right, junction ray): tangent
         planes (direction and offset of the axis) if the frame passes the trocar gate, the
         junction ray (tip) if visible and well conditioned."""
@@ -642,7 +643,7 @@ class TrackingFilter:
             return False
         prm = self.prm
         A = self.A
-        n = np.stack([obs["n_left"], obs["n_right"]])
+        n = np.stack([obs.n_left, obs.n_right])
         rho = self.c.shaft_radius_m
         cam = self.c_cam
         gate = np.abs(n @ self.rcm_cam - rho).max()
@@ -663,8 +664,8 @@ class TrackingFilter:
                 return True
         else:
             _bump(s.counts, "rejected:vision_axis:trocar_gate")
-        if obs["junction_visible"] and (passed or prm.gated_out_tip):
-            d = obs["ray"]
+        if obs.junction_visible and (passed or prm.gated_out_tip):
+            d = obs.ray
             u_c = A @ s.R[:, 2]
             if 1.0 - float(d @ u_c) ** 2 < prm.junction_min_sin2:
                 _bump(s.counts, "rejected:vision_tip:ill_conditioned")
@@ -686,7 +687,7 @@ class TrackingFilter:
             s.last_vision_ns = s.t_ns
         return applied
 
-    def _reacquire(self, s: State, obs: dict) -> bool:
+    def _reacquire(self, s: State, obs: VisionObservation) -> bool:
         """A frame that passes the trocar gate but fails the axis' innovation gate: the
         correction vision asks for (rotation phi [rad] taking the shaft onto the frame's, tip
         shift dp [m], base frame) is kept; once `reacquire_frames` such frames within the window
@@ -694,7 +695,7 @@ class TrackingFilter:
         covariance reset to its initial values (biases kept): vision re-acquires the heading
         after a blackout instead of waiting for the divergence reset. True when applied."""
         prm = self.prm
-        if prm.reacquire_frames < 1 or not obs["junction_visible"]:
+        if prm.reacquire_frames < 1 or not obs.junction_visible:
             return False
         cand = self.init_from_vision(s.t_ns, obs, None)
         if cand is None:

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from services.fusion.eskf.init import initial_rotation
+from services.fusion.eskf.measurement import VisionObservation
 from services.fusion.eskf.params import SENSORS, Params
 from services.fusion.timing.runner import FusionRunner
 from tiplog.calibration import Calibration, CalibrationError
@@ -94,7 +95,7 @@ def _pose(calib: Calibration, params: Params) -> tuple[np.ndarray, float, dict[s
             n_l, n_r = tangent_normals(f.rcm_cam, u_cam, calib.shaft_radius_m)
         except ValueError:
             continue
-        obs = {"n_left": n_l, "n_right": n_r, "junction_visible": True, "ray": _unit(junction_cam)}
+        obs = VisionObservation(n_l, n_r, True, _unit(junction_cam))
         s = f.init_from_vision(0, obs, None)
         if s is not None and abs(s.p - tip).max() < 1e-3:
             return R, depth, obs
@@ -140,7 +141,7 @@ def synthetic_inputs(
                 m.junction_visible = k % 3 != 2
                 for name, key in (("n_left", "n_left"), ("n_right", "n_right"), ("junction_ray", "ray")):
                     v = getattr(m, name)
-                    v.x, v.y, v.z = obs[key].tolist()
+                    v.x, v.y, v.z = getattr(obs, key).tolist()
             m.header.stamp_ns = stamp
             m.header.seq = k
             arrival = stamp + (VISION_DELAY_NS if topic == "vision/observation" else 0)

@@ -42,11 +42,11 @@ def smooth(calib: Calibration, params: Params, msgs, sensors: frozenset[str] = S
     events = []
     for topic, msg, _ in msgs:
         try:
-            ev = runner._event(topic, msg)
+            m = runner.adapter.measurement(topic, msg)
         except (AttributeError, TypeError, ValueError):
             continue
-        if ev is not None:
-            events.append(ev)
+        if m is not None:
+            events.append(runner.event(m))
     events.sort(key=lambda e: e[0])
     rec = _Recorder()
     original = filt.propagate

@@ -33,8 +33,10 @@ import numpy as np
 
 from services.fusion.eskf.filter import ADAPTIVE, State, TrackingFilter
 from services.fusion.eskf.init import initial_rotation, shaft_from_tilt
+from services.fusion.eskf.measurement import Measurement
 from services.fusion.eskf.params import SENSORS, Params, mode_name
 from services.fusion.eskf.sample import StateSample, finite_sample
+from services.fusion.timing.measurements import MessageAdapter
 from tiplog.calibration import Calibration
 
 ALL = SENSORS
@@ -46,16 +48,7 @@ KIND_ORDER = {"gyro": 0, "accel": 1, "tof": 2, "vision": 3}
 T_SHIFT, K_SHIFT = 40, 36
 KEY_BEFORE_ALL = -(1 << 110)  # below every key (the empty start's snapshot)
 OUTPUTS = ("display", "settled", "both")
-TOF_VALID = 1
 __all__ = ["ALL", "FusionRunner", "StateSample"]
-
-
-def _v3(v: Any) -> np.ndarray:
-    """A message's vector (3,); ValueError when any component is not finite (a corrupt message)."""
-    x, y, z = float(v.x), float(v.y), float(v.z)
-    if not math.isfinite(x + y + z):
-        raise ValueError("non-finite value")
-    return np.array((x, y, z))
 
 
 class _Track:
@@ -131,7 +124,6 @@ class FusionRunner:
         self._keep_history = output != "settled"
         self.lock_ns = int(p.vision_lock_ms * 1e6)
         self.restart_ns = int(p.restart_without_vision_ms * 1e6) if p.restart_without_vision_ms > 0 else None
-        self.lat = {k: calibration.latency_ns(k) for k in ("gyro", "accel", "tof", "camera")}
         self._pending: deque[tuple[int, tuple]] = deque()  # (arrival, event) in feed order
         self._gyro_due: deque[tuple[int, int, int]] = deque()  # (cutoff, t, key) to publish
         self._settle_due: deque[tuple[int, int, int]] = deque()  # the same, settled ("both")
@@ -154,17 +146,23 @@ class FusionRunner:
         self._last_arrival = -(1 << 62)
         self.stats: dict[str, float] = {"rewinds": 0, "max_rewind_ms": 0.0, "corrupt": 0, "late_gyro": 0}
         self.dropped: dict[str, int] = {}
+        self.adapter = MessageAdapter(calibration, self.params, self.sensors, self.dropped)
 
     # ------------------------------------------------------------------ input
     def feed(self, topic: str, msg: Any, arrival_ns: int) -> None:
-        """One message as it arrived (arrival order); unknown topics are ignored."""
+        """One bus or recording message as it arrived (arrival order); topics and samples the
+        filter does not use are ignored, a corrupt message is counted."""
         try:
-            ev = self._event(topic, msg)
+            m = self.adapter.measurement(topic, msg)
         except (AttributeError, TypeError, ValueError):
             self.stats["corrupt"] += 1
             return
-        if ev is None:
-            return
+        if m is not None:
+            self.feed_measurement(m, arrival_ns)
+
+    def feed_measurement(self, m: Measurement, arrival_ns: int) -> None:
+        """One measurement as it arrived (arrival order)."""
+        ev = self.event(m)
         arrival_ns = max(int(arrival_ns), self._last_arrival)
         self._last_arrival = arrival_ns
         key = ev[0]
@@ -182,45 +180,11 @@ class FusionRunner:
         name = f"{kind}:{reason}"
         self.dropped[name] = self.dropped.get(name, 0) + 1
 
-    def _event(self, topic: str, msg: Any) -> tuple | None:
-        """(key, kind, payload) with key = (t << T_SHIFT) + (kind order << K_SHIFT) + seq, or None
-        to ignore."""
-        if topic == "device/gyro":
-            w = _v3(msg.rate_radps)
-            t = msg.header.stamp_ns - self.lat["gyro"]
-            kind, payload = "gyro", w
-        elif topic == "device/accel":
-            if "imu" not in self.sensors:
-                return None
-            kind, payload = "accel", _v3(msg.specific_force_mps2)
-            t = msg.header.stamp_ns - self.lat["accel"]
-        elif topic == "device/tof":
-            if "tof" not in self.sensors:
-                return None
-            rng = float(msg.range_raw_mm)
-            if msg.status != TOF_VALID or not (self.params.tof_min_mm <= rng <= self.params.tof_max_mm):
-                self.dropped["tof:invalid"] = self.dropped.get("tof:invalid", 0) + 1
-                return None
-            kind, payload = "tof", rng * 1e-3
-            t = msg.header.stamp_ns - self.lat["tof"]
-        elif topic == "vision/observation":
-            if "vision" not in self.sensors:
-                return None
-            if not msg.accepted:
-                self.dropped["vision:not_accepted"] = self.dropped.get("vision:not_accepted", 0) + 1
-                return None
-            payload = {
-                "n_left": _v3(msg.n_left),
-                "n_right": _v3(msg.n_right),
-                "junction_visible": bool(msg.junction_visible),
-                "ray": _v3(msg.junction_ray),
-            }
-            kind = "vision"
-            t = msg.header.stamp_ns - self.lat["camera"]
-        else:
-            return None
+    def event(self, m: Measurement) -> tuple:
+        """(key, kind, value) with key = (t << T_SHIFT) + (kind order << K_SHIFT) + seq: the
+        measurement's place in the filter's time order (arrival order breaks ties)."""
         self._seq += 1
-        return ((int(t) << T_SHIFT) + (KIND_ORDER[kind] << K_SHIFT) + self._seq, kind, payload)
+        return ((int(m.t_ns) << T_SHIFT) + (KIND_ORDER[m.kind] << K_SHIFT) + self._seq, m.kind, m.value)
 
     # ------------------------------------------------------------------ output
     def advance(self, now_ns: int) -> list[StateSample]:

@@ -12,6 +12,7 @@ import pytest
 
 from services.fusion.eskf import kernels
 from services.fusion.eskf.filter import E_Z, N, TrackingFilter, skew
+from services.fusion.eskf.measurement import VisionObservation
 from services.fusion.eskf.params import Params
 from tiplog.calibration import Calibration
 from tiplog.geometry import rot_between, so3_exp
@@ -47,14 +48,14 @@ def _pose():
     return R, RCM + 0.14 * u
 
 
-def _obs(c: Calibration, R: np.ndarray, p: np.ndarray, tilt_rad: float = 0.0) -> dict:
+def _obs(c: Calibration, R: np.ndarray, p: np.ndarray, tilt_rad: float = 0.0) -> VisionObservation:
     A = c.R_base_camera.T
     u_c = A @ R[:, 2]
     J_c = A @ (p - c.junction_proximal_m * R[:, 2] - c.p_base_camera_m)
     n_l, n_r = vg.tangent_plane_normals(vg.closest_axis_point(J_c, u_c), u_c, c.shaft_radius_m)
     if tilt_rad:
         n_l = vg.tilt_normal(n_l, tilt_rad, 0.0, u_c)
-    return {"n_left": n_l, "n_right": n_r, "junction_visible": True, "ray": J_c / np.linalg.norm(J_c)}
+    return VisionObservation(n_l, n_r, True, J_c / np.linalg.norm(J_c))
 
 
 def test_kernels_match_numpy():
@@ -628,7 +629,7 @@ def test_held_tof_offset_moves_through_no_other_update():
     rho = _range(f.c, R, p)
     s.last_tip_ns = s.t_ns - 3_000_000_000
     b0, var0 = s.brho, s.P[15, 15]
-    hidden = dict(_obs(f.c, R, p), junction_visible=False)
+    hidden = _obs(f.c, R, p)._replace(junction_visible=False)
     f_true = f.c.R_tool_imu.T @ R.T @ (-G)
     for k in range(200):
         t = s.t_ns + 5_000_000
