@@ -5,7 +5,13 @@ clock the moment it returns, before parsing. The newest sample of each stream in
 carries that arrival stamp; older samples of the same stream in the same read (a loaded host
 reads bursts) are back-dated by their spacing on the device clock, never to or before the
 stream's previous stamp, so every sample keeps a distinct, ordered host time. Each also
-carries its device clock. Faults are counted (parser counters plus `disconnects`, `reconnects`,
+carries its device clock. No sample is stamped more than `MAX_LATE_NS` after the time the device
+clock gives it (its device time plus the smallest arrival delay of its stream over the last
+`DELAY_WINDOW_NS`): after a stall (the device's writer or this reader starved for a while) the
+first read holds samples from the start of the stall, and stamping its newest on arrival put the
+whole read late and squeezed the next read's samples into 1 ns steps after it, a gap and a pile
+of equal times that fusion turned into jumps of the tip. In the ordinary case (arrival within
+`MAX_LATE_NS` of the quickest) the stamp is the arrival, as before. Faults are counted (parser counters plus `disconnects`, `reconnects`,
 `stalls`, `open_failures`) and never end the thread: a lost port is retried with capped
 exponential back-off, a silent port goes STALLED (and is reopened after `stall_reopen_s`).
 """
@@ -14,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import serial
@@ -47,6 +53,12 @@ class DeviceLinkConfig:
 
 # A burst older than this on the device clock is not back-dated (a device restart, a clock jump).
 MAX_BACKDATE_NS = NS_PER_S
+# A sample is stamped at most this long after its device time plus its stream's smallest arrival
+# delay of the last DELAY_WINDOW_NS: the ordinary jitter of the reads stays arrival time, and it
+# is under the spacing of the fastest stream (4.2 ms at 240 Hz), so the samples of a stall never
+# pile onto those read before or after it.
+MAX_LATE_NS = 4_000_000
+DELAY_WINDOW_NS = 10 * NS_PER_S
 
 
 class DeviceReader:
@@ -64,6 +76,9 @@ class DeviceReader:
             PacketType.TOF: bus.publisher("device/tof"),
         }
         self._last_stamp_ns: dict[PacketType, int] = {}
+        # per stream, (read stamp, arrival minus device time of the read's newest sample) for the
+        # last DELAY_WINDOW_NS, the smallest delay first: a monotonic deque (see _quickest)
+        self._delays: dict[PacketType, deque[tuple[int, int]]] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="serial-reader", daemon=True)
         self.connect_times_ns: list[int] = []
@@ -160,11 +175,12 @@ class DeviceReader:
             return 0
         counts: Counter[str] = Counter()
         newest_us = {p.type: p.device_us for p in pkts if isinstance(p, (Vec3Packet, TofPacket))}
+        offset = {typ: self._quickest(typ, stamp_ns, us) for typ, us in newest_us.items()}
         for pkt in pkts:
             if isinstance(pkt, Vec3Packet):
-                self._publish_vec3(pkt, self._sample_stamp(pkt, stamp_ns, newest_us[pkt.type]))
+                self._publish_vec3(pkt, self._sample_stamp(pkt, stamp_ns, newest_us[pkt.type], offset[pkt.type]))
             elif isinstance(pkt, TofPacket):
-                self._publish_tof(pkt, self._sample_stamp(pkt, stamp_ns, newest_us[pkt.type]))
+                self._publish_tof(pkt, self._sample_stamp(pkt, stamp_ns, newest_us[pkt.type], offset[pkt.type]))
             elif isinstance(pkt, HelloPacket):
                 self.status.on_hello(pkt, PROTOCOL_VERSION)
             counts[STREAM_NAMES[pkt.type]] += 1
@@ -172,10 +188,33 @@ class DeviceReader:
         self._sync_faults()
         return len(pkts)
 
-    def _sample_stamp(self, pkt: Vec3Packet | TofPacket, read_ns: int, newest_us: int) -> int:
-        """Host time of one sample of a read stamped `read_ns` [ns] (see the module docstring)."""
+    def _quickest(self, typ: PacketType, read_ns: int, newest_us: int) -> int | None:
+        """Host minus device time [ns] of the stream's quickest arrival of the last
+        DELAY_WINDOW_NS, this read's newest sample included; None when this read says the device
+        clock jumped (its newest sample would be over MAX_BACKDATE_NS old): the window starts
+        again from it."""
+        delay = read_ns - newest_us * 1000
+        q = self._delays.setdefault(typ, deque())
+        if q and delay - q[0][1] > MAX_BACKDATE_NS:
+            q.clear()
+            q.append((read_ns, delay))
+            return None
+        while q and q[-1][1] >= delay:
+            q.pop()
+        q.append((read_ns, delay))
+        while q[0][0] < read_ns - DELAY_WINDOW_NS:
+            q.popleft()
+        return q[0][1]
+
+    def _sample_stamp(
+        self, pkt: Vec3Packet | TofPacket, read_ns: int, newest_us: int, offset: int | None = None
+    ) -> int:
+        """Host time of one sample of a read stamped `read_ns` [ns] (see the module docstring);
+        `offset` from _quickest."""
         back_ns = (newest_us - pkt.device_us) * 1000
         t = read_ns - back_ns if 0 <= back_ns < MAX_BACKDATE_NS else read_ns
+        if offset is not None:
+            t = min(t, pkt.device_us * 1000 + offset + MAX_LATE_NS)
         prev = self._last_stamp_ns.get(pkt.type, 0)
         if t <= prev:
             t = min(prev + 1, read_ns)

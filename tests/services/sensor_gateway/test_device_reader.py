@@ -7,7 +7,7 @@ import socket
 import threading
 import time
 
-from services.sensor_gateway.device import DeviceLinkConfig, DeviceReader
+from services.sensor_gateway.device import MAX_LATE_NS, DeviceLinkConfig, DeviceReader
 from services.sensor_gateway.status import GatewayStatus
 from tiplog.bus import Bus
 from tiplog.devproto.packets import HelloPacket, PacketType, TofPacket, Vec3Packet, encode_packet_frame
@@ -117,3 +117,34 @@ def test_a_burst_read_at_once_keeps_the_device_spacing(bus_pair_configs):
     # the second read cannot go back before the first one's newest: 1 ns steps up to its arrival
     assert stamps[4:] == [T + 1, T + 2, T + 1_000_000]
     assert [m.header.stamp_ns for m in tofs] == [T, T + 1_000_000]  # alone in its stream in each read
+
+
+def test_after_a_stall_samples_keep_their_device_times(bus_pair_configs):
+    """The device's writer (or this reader) starved for 0.6 s: the overdue samples come in two
+    reads. They are stamped at most MAX_LATE_NS after their device time plus the quickest
+    arrival seen, not the first read on arrival (0.3 s late) and the second squeezed into 1 ns
+    steps after it; the ordinary reads (jitter under MAX_LATE_NS) keep their arrival time."""
+    listen_cfg, connect_cfg = bus_pair_configs
+    gyros = []
+    with Bus(listen_cfg) as sub_bus, Bus(connect_cfg) as pub_bus:
+        sub_bus.subscribe("device/gyro", lambda m, i: gyros.append(m))
+        sub_bus.subscribe("device/tof", lambda m, i: None)  # wait_matched waits for both streams
+        reader = DeviceReader(DeviceLinkConfig(port="loop://"), pub_bus, GatewayStatus("loop://", lambda m: None))
+        assert wait_matched(reader)
+
+        def gyro(k: int) -> bytes:
+            return encode_packet_frame(Vec3Packet(PacketType.GYRO, k, 5000 * k, 0.0, 0.0, 0.0))
+
+        T = 10_000_000_000  # host time of device time 0, plus a 0.5 ms quickest delay
+        for k in range(100):  # one sample a read, 0.5-2.5 ms after its time
+            assert reader._handle(gyro(k), T + 5_000_000 * k + 500_000 + (k % 5) * 500_000) == 1
+        # 0.6 s with nothing, then samples 100-219 (due meanwhile) in two reads 1 ms apart
+        assert reader._handle(b"".join(gyro(k) for k in range(100, 160)), T + 5_000_000 * 219 + 700_000) == 60
+        assert reader._handle(b"".join(gyro(k) for k in range(160, 220)), T + 5_000_000 * 219 + 1_700_000) == 60
+        assert wait_for(lambda: len(gyros) == 220, 30), len(gyros)
+    stamps = [m.header.stamp_ns for m in gyros]
+    ordinary = [T + 5_000_000 * k + 500_000 + (k % 5) * 500_000 for k in range(100)]
+    assert stamps[:100] == ordinary  # arrival, as before
+    late = [s - (T + 5_000_000 * k + 500_000) for k, s in enumerate(stamps)]
+    assert max(late[100:]) <= MAX_LATE_NS  # the stall's samples at their device times (first read was 300 ms late)
+    assert min(b - a for a, b in zip(stamps[99:], stamps[100:], strict=False)) > 1_000_000  # no 1 ns steps
