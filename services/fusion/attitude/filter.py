@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from services.fusion.eskf import kernels
+from services.fusion.eskf.layout import REST_RATE, rest_constants
 
 try:  # a dependency (compiles the time loop, about 100x faster); plain Python where it is absent
     from numba import njit
@@ -60,6 +61,12 @@ _QG, _QA, _LPA, _BIAS, _P = 0, 4, 8, 14, 17  # q_gyr(4) q_acc(4) acc lp(6) bias(
 _GLP, _LPR, _LPB = 26, 29, 47  # rest's mean gyro rate(3) R lp(18) Rb lp(4)
 _REST, _T, _GPREV, _FLAG, _ACC_INIT, _ACC_T = 51, 52, 53, 56, 57, 58
 _N_STATE = 59
+# Layout of the kernel's parameter vector (`Params.vector`).
+PRM_TAU_ACC_S, PRM_BIAS_SIGMA_INIT_DPS, PRM_BIAS_FORGETTING_S, PRM_BIAS_CLIP_RADPS = 0, 1, 2, 3
+PRM_BIAS_SIGMA_MOTION_DPS, PRM_VERTICAL_FORGETTING, PRM_BIAS_SIGMA_REST_DPS = 4, 5, 6
+PRM_MAX_GAP_S = 7  # negative when the bias is not estimated
+PRM_GYR_DELAY_S = 8
+PRM_SIZE = 9
 
 
 @dataclass(frozen=True)
@@ -97,34 +104,24 @@ class Params:
 
     def vector(self) -> np.ndarray:
         """The kernel's parameter vector (radians and SI units; the rest detector's: `rest_vector`)."""
-        return np.array(
-            [
-                self.tau_acc_s,
-                self.bias_sigma_init_dps,
-                self.bias_forgetting_time_s,
-                self.bias_clip_dps * _DEG,
-                self.bias_sigma_motion_dps,
-                self.bias_vertical_forgetting,
-                self.bias_sigma_rest_dps,
-                self.max_gap_s if self.estimate_bias else -self.max_gap_s,
-                self.gyr_delay_s,
-            ]
-        )
+        v = np.empty(PRM_SIZE)
+        v[PRM_TAU_ACC_S] = self.tau_acc_s
+        v[PRM_BIAS_SIGMA_INIT_DPS] = self.bias_sigma_init_dps
+        v[PRM_BIAS_FORGETTING_S] = self.bias_forgetting_time_s
+        v[PRM_BIAS_CLIP_RADPS] = self.bias_clip_dps * _DEG
+        v[PRM_BIAS_SIGMA_MOTION_DPS] = self.bias_sigma_motion_dps
+        v[PRM_VERTICAL_FORGETTING] = self.bias_vertical_forgetting
+        v[PRM_BIAS_SIGMA_REST_DPS] = self.bias_sigma_rest_dps
+        v[PRM_MAX_GAP_S] = self.max_gap_s if self.estimate_bias else -self.max_gap_s
+        v[PRM_GYR_DELAY_S] = self.gyr_delay_s
+        return v
 
     def rest_vector(self) -> np.ndarray:
         """The constants of `kernels.rest_sample`, the rest detector the tracking filter uses."""
-        return np.array(
-            [
-                self.rest_tau_s,
-                (self.rest_th_gyr_dps * _DEG) ** 2,
-                self.rest_th_acc_mps2**2,
-                self.rest_min_s,
-                self.rest_chunk_s,
-                self.max_gap_s,
-                (self.rest_agree_gyr_dps * _DEG) ** 2,
-                self.rest_agree_acc_mps2**2,
-            ]
-        )
+        return rest_constants(
+            self.rest_tau_s, self.rest_th_gyr_dps * _DEG, self.rest_th_acc_mps2, self.rest_min_s, self.rest_chunk_s,
+            self.max_gap_s, self.rest_agree_gyr_dps * _DEG, self.rest_agree_acc_mps2,
+        )  # fmt: skip
 
 
 @jit
@@ -198,10 +195,10 @@ def _run(
     st; when b_out has N rows, each row's bias [rad/s] and its covariance [(deg/s)^2] into
     b_out (N, 12). `rest` is the state of the rest detector (`kernels.rest_sample`, constants
     rest_k). Rows whose time is not after the previous row's change nothing."""
-    clip, max_gap = prm[3], abs(prm[7])
+    clip, max_gap = prm[PRM_BIAS_CLIP_RADPS], abs(prm[PRM_MAX_GAP_S])
     qtmp = np.empty(4)
     qnow = st[_QG : _QG + 4].copy()  # q_gyr carried forward over the gyroscope's delay
-    delay = prm[8]
+    delay = prm[PRM_GYR_DELAY_S]
     corr = np.empty(4)
     R = np.empty(9)
     H = np.zeros((3, 3))
@@ -245,11 +242,11 @@ def _run(
             if kernels.rest_sample(rest, gyr[i], t, 0, rest_k):
                 big = False
                 for k in range(3):
-                    big = big or abs(rest[25 + k]) > clip
+                    big = big or abs(rest[REST_RATE + k]) > clip
                 if not big:
                     st[_REST] = 1.0
                     for k in range(3):
-                        st[_GLP + k] = rest[25 + k]
+                        st[_GLP + k] = rest[REST_RATE + k]
         if a_ok:
             kernels.rest_sample(rest, acc[i], t, 1, rest_k)
         if rest[8] != rest[8]:  # a sample off its low-pass: moving
@@ -284,10 +281,15 @@ def _predict(st: np.ndarray, delay: float, qnow: np.ndarray, qr: np.ndarray, e: 
 def _acc_step(a, dt, st, prm, qnow, qtmp, corr, R, H, e) -> None:
     """Accelerometer row: low-pass in the gyro frame, inclination correction, bias update (see
     the module docstring)."""
-    tau_acc, clip, mot_sig, vert_f, rest_sig = prm[0], prm[3], prm[4], prm[5], prm[6]
-    bias_on = prm[7] > 0
-    p0 = prm[1] * prm[1]
-    v_rate = 0.01 / prm[2]  # (0.1 deg/s)^2 per forgetting time, per second
+    tau_acc, clip = prm[PRM_TAU_ACC_S], prm[PRM_BIAS_CLIP_RADPS]
+    mot_sig, vert_f, rest_sig = (
+        prm[PRM_BIAS_SIGMA_MOTION_DPS],
+        prm[PRM_VERTICAL_FORGETTING],
+        prm[PRM_BIAS_SIGMA_REST_DPS],
+    )
+    bias_on = prm[PRM_MAX_GAP_S] > 0
+    p0 = prm[PRM_BIAS_SIGMA_INIT_DPS] * prm[PRM_BIAS_SIGMA_INIT_DPS]
+    v_rate = 0.01 / prm[PRM_BIAS_FORGETTING_S]  # (0.1 deg/s)^2 per forgetting time, per second
     init = st[_ACC_INIT] == 0.0 or dt <= 0.0
     step = dt if dt > 0.0 else 0.005
     ca = lowpass_coeffs(tau_acc, step)

@@ -23,13 +23,36 @@ import numpy as np
 
 from services.fusion.eskf import kernels
 from services.fusion.eskf.init import closest_params, initial_rotation, perp_basis
+from services.fusion.eskf.layout import (
+    GK_BG_RW,
+    GK_BG_RW_PER_RADPS,
+    GK_BRHO_PER_RAD,
+    GK_IMU_GAP_S,
+    GK_MAX_POS_VAR,
+    GK_MAX_SPEED2,
+    GK_NO_IMU_Q,
+    GK_RCM_CHI2,
+    GK_RCM_VAR,
+    GK_SIZE,
+    GR_CHI2,
+    GR_SIGMA,
+    GR_SIGMA_PER_EXCESS,
+    GR_SIZE,
+    IBA,
+    IBG,
+    IBR,
+    IP,
+    ITH,
+    IV,
+    REST_RATE,
+    N,
+    rest_constants,
+)
 from services.fusion.eskf.maps import AccelMap, TofMap
 from services.fusion.eskf.measurement import VisionObservation
 from services.fusion.eskf.params import SENSORS, Params
 from tiplog.calibration import Calibration
 
-N = 16
-IP, IV, ITH, IBG, IBA, IBR = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15), 15
 E_Z = np.array([0.0, 0.0, 1.0])
 DEG = math.pi / 180.0
 
@@ -141,7 +164,10 @@ class TrackingFilter:
         self._adapt_tau_s = p.noise_adapt_tau_s
         self._adapt_max = p.noise_adapt_max
         self._adapt_dt_max_s = p.noise_adapt_step_max_ms * 1e-3
-        self._grav_k = np.array([p.gravity_sigma_deg * DEG, p.gravity_sigma_per_excess * DEG, p.gate_chi2_3])
+        self._grav_k = np.empty(GR_SIZE)
+        self._grav_k[GR_SIGMA] = p.gravity_sigma_deg * DEG
+        self._grav_k[GR_SIGMA_PER_EXCESS] = p.gravity_sigma_per_excess * DEG
+        self._grav_k[GR_CHI2] = p.gate_chi2_3
         Q = np.zeros(N)
         if self.imu:
             Q[IV] = self.q_acc
@@ -157,17 +183,22 @@ class TrackingFilter:
         self._brho_window_ns = p.tof_offset_window_ms * 1e6
         self._map_settle_ns = p.tof_map_settle_ms * 1e6
         self._tof_fresh_ns = 100e6  # the ToF range a junction is checked against: at most this old
-        self._gyro_k = np.array([
-            p.gyro_bias_rw_dps_rts * DEG, p.gyro_bias_rw_dps_rts_per_radps * DEG, p.imu_gap_ms * 1e-3,
-            p.no_imu_accel_rw_mps2_rts**2, self.rcm_var, p.gate_chi2_2, (p.max_position_sigma_mm * 1e-3) ** 2,
-            p.max_speed_mps**2, p.tof_offset_rw_mm2_per_deg * 1e-6 / DEG,
-        ])  # fmt: skip
+        k = self._gyro_k = np.empty(GK_SIZE)
+        k[GK_BG_RW] = p.gyro_bias_rw_dps_rts * DEG
+        k[GK_BG_RW_PER_RADPS] = p.gyro_bias_rw_dps_rts_per_radps * DEG
+        k[GK_IMU_GAP_S] = p.imu_gap_ms * 1e-3
+        k[GK_NO_IMU_Q] = p.no_imu_accel_rw_mps2_rts**2
+        k[GK_RCM_VAR] = self.rcm_var
+        k[GK_RCM_CHI2] = p.gate_chi2_2
+        k[GK_MAX_POS_VAR] = (p.max_position_sigma_mm * 1e-3) ** 2
+        k[GK_MAX_SPEED2] = p.max_speed_mps**2
+        k[GK_BRHO_PER_RAD] = p.tof_offset_rw_mm2_per_deg * 1e-6 / DEG
         self._alpha_min_span_ns = p.alpha_min_span_ms * 1e6
         self.rest_on = self.imu and p.rest_bias
-        self._rest_k = np.array([
-            p.rest_tau_ms * 1e-3, (p.rest_th_gyro_dps * DEG) ** 2, p.rest_th_accel_mps2**2, p.rest_min_ms * 1e-3,
-            p.rest_chunk_ms * 1e-3, p.imu_gap_ms * 1e-3, (p.rest_agree_gyro_dps * DEG) ** 2, p.rest_agree_accel_mps2**2,
-        ])  # fmt: skip
+        self._rest_k = rest_constants(
+            p.rest_tau_ms * 1e-3, p.rest_th_gyro_dps * DEG, p.rest_th_accel_mps2, p.rest_min_ms * 1e-3,
+            p.rest_chunk_ms * 1e-3, p.imu_gap_ms * 1e-3, p.rest_agree_gyro_dps * DEG, p.rest_agree_accel_mps2,
+        )  # fmt: skip
         # what the compiled steps take: the detector's constants, or none (empty) when it is off
         self._no_rest_k = np.zeros(0)
         self._rest_k_on = self._rest_k if self.rest_on else self._no_rest_k
@@ -530,7 +561,15 @@ class TrackingFilter:
         between blocks would shrink the heading's sigma several times while the heading itself
         stayed tens of degrees off, and a heading that sure of itself cannot be pulled back."""
         gain = (IBG.start, IBG.stop) if self.prm.rest_bias_only and not self.brho_free(s) else None
-        return self._update(s, self._rest_H, s.rest[25:28] - s.bg, self._rest_var, self.prm.gate_chi2_3, "rest", gain)
+        return self._update(
+            s,
+            self._rest_H,
+            s.rest[REST_RATE : REST_RATE + 3] - s.bg,
+            self._rest_var,
+            self.prm.gate_chi2_3,
+            "rest",
+            gain,
+        )
 
     def update_tof(self, s: State, range_m: float) -> bool:
         """Raw range through the ray-plane model rho = (h - m.(p + R o)) / (m.(R b)) + b_rho;
@@ -731,7 +770,9 @@ class TrackingFilter:
 
     def diverged(self, s: State) -> str | None:
         """Why the state must be reset, or None."""
-        return self._why(kernels.health(s.p, s.v, s.R, s.P, self._gyro_k[6], self._gyro_k[7]), s)
+        return self._why(
+            kernels.health(s.p, s.v, s.R, s.P, self._gyro_k[GK_MAX_POS_VAR], self._gyro_k[GK_MAX_SPEED2]), s
+        )
 
     def _why(self, health: int, s: State) -> str | None:
         if health == 1:

@@ -26,7 +26,39 @@ except ImportError:  # pragma: no cover - exercised where numba is absent
         return lambda f: f
 
 
-N = 16
+from services.fusion.eskf.layout import (
+    GK_BG_RW,
+    GK_BG_RW_PER_RADPS,
+    GK_BRHO_PER_RAD,
+    GK_IMU_GAP_S,
+    GK_MAX_POS_VAR,
+    GK_MAX_SPEED2,
+    GK_NO_IMU_Q,
+    GK_RCM_CHI2,
+    GK_RCM_VAR,
+    GR_CHI2,
+    GR_SIGMA,
+    GR_SIGMA_PER_EXCESS,
+    REST_CHUNK_T0,
+    REST_COUNT,
+    REST_HAVE_PREV,
+    REST_LP,
+    REST_PREV_ACCEL,
+    REST_PREV_GYRO,
+    REST_RATE,
+    REST_SINCE,
+    REST_SIZE,
+    REST_SUM,
+    REST_T_LAST,
+    RK_AGREE_ACCEL2,
+    RK_AGREE_GYRO2,
+    RK_CHUNK_S,
+    RK_GAP_S,
+    RK_MIN_S,
+    RK_TAU_S,
+    RK_TH_GYRO2,
+    N,
+)
 
 
 @njit(cache=True, fastmath=False)
@@ -372,15 +404,18 @@ def propagate_held(
     w_held: np.ndarray, f_imu: np.ndarray, alpha_tool: np.ndarray, R_ti: np.ndarray, r_lever_tool: np.ndarray,
     q: np.ndarray, k: np.ndarray, dt: float, imu: bool,
 ) -> None:  # fmt: skip
-    """`propagate` over dt with the latest samples held, k as in `gyro_step`. Past k[2] seconds
-    without an IMU sample (a stalled host) the held specific force says little about the
-    motion, so the velocity gets the uncertainty it has without an IMU, k[3] [m^2/s^3], for
-    every further second (held alone, a tool that was accelerating ran off at 0.25 m/s after
-    a 0.7 s stall)."""
-    propagate(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[0], k[1], dt, imu, k[8])
-    if imu and dt > k[2]:
+    """`propagate` over dt with the latest samples held, k the gyro-step constants (`layout.GK_*`).
+    Past k[GK_IMU_GAP_S] without an IMU sample (a stalled host) the held specific force says
+    little about the motion, so the velocity gets the uncertainty it has without an IMU,
+    k[GK_NO_IMU_Q], for every further second (held alone, a tool that was accelerating would run
+    off)."""
+    propagate(
+        p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[GK_BG_RW], k[GK_BG_RW_PER_RADPS], dt,
+        imu, k[GK_BRHO_PER_RAD],
+    )  # fmt: skip
+    if imu and dt > k[GK_IMU_GAP_S]:
         for i in range(3, 6):
-            P[i, i] += k[3] * (dt - k[2])
+            P[i, i] += k[GK_NO_IMU_Q] * (dt - k[GK_IMU_GAP_S])
 
 
 @njit(cache=True)
@@ -393,11 +428,10 @@ def gyro_step(
     """Everything one gyro sample does, in one call (the filter's per-sample Python overhead was
     half its time): `propagate_held` over dt with the held samples (w_held, f_imu, alpha_tool);
     the angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
-    unchanged when negative); then, if do_rcm, the RCM update with variance k[4] per axis and
-    chi-square gate k[5]; then the state's `health` with k[6], k[7]; last, with the IMU, w_new
-    at t_s [s] through the rest detector (`rest_sample`, rest_k; an empty rest_k: none). k =
-    [bg_rw_static, bg_rw_per_radps, imu_gap_s, no_imu_q, rcm_var, chi2, max_pos_var, max_speed2,
-    brho_per_rad]. Returns (status, NIS, b_rho increment, health, whether the rest detector
+    unchanged when negative); then, if do_rcm, the RCM update (variance k[GK_RCM_VAR] per axis,
+    gate k[GK_RCM_CHI2]); then the state's `health`; last, with the IMU, w_new at t_s [s] through
+    the rest detector (`rest_sample`, rest_k; an empty rest_k: none). k holds the gyro-step
+    constants (`layout.GK_*`). Returns (status, NIS, b_rho increment, health, whether the rest detector
     released a chunk), status -1 when no RCM update was made, else as `update`."""
     if dt > 0.0:
         propagate_held(p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k, dt, imu)
@@ -413,11 +447,11 @@ def gyro_step(
     if do_rcm:
         H, y = rcm_jacobian(R, p, rcm)
         r_var = np.empty(2)
-        r_var[0] = r_var[1] = k[4]
-        status, nis, dx = update(P, H, y, r_var, k[5], 0, gain_hi(freeze_last))
+        r_var[0] = r_var[1] = k[GK_RCM_VAR]
+        status, nis, dx = update(P, H, y, r_var, k[GK_RCM_CHI2], 0, gain_hi(freeze_last))
         if status == 0:
             dbrho = inject(p, v, R, bg, ba, dx, P)
-    hl = health(p, v, R, P, k[6], k[7])
+    hl = health(p, v, R, P, k[GK_MAX_POS_VAR], k[GK_MAX_SPEED2])
     released = imu and rest_k.shape[0] > 0 and rest_sample(rest, w_new, t_s, 0, rest_k)
     return status, nis, dbrho, hl, released
 
@@ -432,8 +466,8 @@ def gravity_step(
     """What an accelerometer sample due for a gravity update does, in one call (it comes at
     every sample): `propagate_held` over dt (k as in `gyro_step`; 0 when the caller propagated
     already), then the gravity update (`gravity_jacobian`, the shaft's point at the port `rcm`
-    taken at rest: `port_lever`) with the standard deviation g[0] + g[1] | |f|/g - 1 | [rad] of
-    the direction per axis and chi-square gate g[2]. Returns (status, NIS, b_rho increment,
+    taken at rest: `port_lever`) with the standard deviation g[GR_SIGMA] + g[GR_SIGMA_PER_EXCESS]
+    | |f|/g - 1 | [rad] of the direction per axis and chi-square gate g[GR_CHI2]. Returns (status, NIS, b_rho increment,
     recorded), status as `update`.
 
     With max_excess >= 0 an applied update whose |f| is within max_excess of g is also
@@ -456,10 +490,10 @@ def gravity_step(
             for j in range(3):
                 acc[3 * i + j] += R[i, j]
             acc[9 + i] += p[i]
-    sig = (g[0] + g[1] * excess) * 9.80665
+    sig = (g[GR_SIGMA] + g[GR_SIGMA_PER_EXCESS] * excess) * 9.80665
     r_var = np.empty(3)
     r_var[0] = r_var[1] = r_var[2] = sig * sig
-    status, nis, dx = update(P, H, y, r_var, g[2], 0, gain_hi(freeze_last))
+    status, nis, dx = update(P, H, y, r_var, g[GR_CHI2], 0, gain_hi(freeze_last))
     dbrho = 0.0
     if status == 0:
         dbrho = inject(p, v, R, bg, ba, dx, P)
@@ -538,83 +572,78 @@ def health(p: np.ndarray, v: np.ndarray, R: np.ndarray, P: np.ndarray, max_pos_v
     return 0
 
 
-# The rest detector's state (`State.rest`): [0:3] low-passed gyro, [3:6] low-passed accel,
-# [6] [7] their last sample times, [8] since when every sample was near its low-pass (NaN:
-# moving), [9:12] [12:15] [15] [16] [17] the current chunk's gyro and accel sums, counts and
-# start, [18:21] [21:24] [24] the completed chunk's gyro and accel means (and whether there is
-# one), [25:28] the mean rate ready to apply.
-REST_SIZE = 28
-
-
 def rest_init() -> np.ndarray:
+    """A rest detector's state (`State.rest`, slots `layout.REST_*`): no sample yet."""
     r = np.zeros(REST_SIZE)
-    r[6:9] = np.nan
+    r[REST_T_LAST : REST_T_LAST + 2] = np.nan
+    r[REST_SINCE] = np.nan
     return r
 
 
 @njit(cache=True)
 def _rest_break(rest: np.ndarray) -> None:
-    rest[8] = np.nan
-    rest[15] = rest[16] = 0.0
-    rest[24] = 0.0
+    rest[REST_SINCE] = np.nan
+    rest[REST_COUNT] = rest[REST_COUNT + 1] = 0.0
+    rest[REST_HAVE_PREV] = 0.0
 
 
 @njit(cache=True)
 def rest_sample(rest: np.ndarray, x: np.ndarray, t_s: float, accel: int, k: np.ndarray) -> bool:
     """One gyro (accel=0, x in rad/s) or accelerometer (accel=1, m/s^2) sample through the rest
-    detector. First VQF's test: every sample of both within sqrt(k[1 + accel]) of its channel's
-    low-pass (time constant k[0] s) for k[3] s; a gap over k[5] s restarts the channel. Then
-    the samples are averaged in chunks of k[4] s, and a chunk is taken for rest only when the
-    next one agrees with it (gyro means within sqrt(k[6]), accel within sqrt(k[7])): a slow
-    smooth motion stays near its low-pass, but its mean rate or its gravity moves from chunk to
-    chunk. A chunk's mean rate is then released into rest[25:28] (True returned); any sample off
-    its low-pass drops the chunks not yet released, so none from a motion's onset is used."""
-    lp, it = 3 * accel, 6 + accel
+    detector (state `rest`, constants k: `layout.REST_*`, `layout.RK_*`). First VQF's test: every
+    sample of both near its channel's low-pass for k[RK_MIN_S]; a gap over k[RK_GAP_S] restarts
+    the channel. Then the samples are averaged in chunks of k[RK_CHUNK_S], and a chunk is taken
+    for rest only when the next one agrees with it: a slow smooth motion stays near its
+    low-pass, but its mean rate or its gravity moves from chunk to chunk. A chunk's mean rate is
+    then released into rest[REST_RATE:] (True returned); any sample off its low-pass drops the
+    chunks not yet released, so none from a motion's onset is used."""
+    lp, it = REST_LP + 3 * accel, REST_T_LAST + accel
     t_last = rest[it]
     rest[it] = t_s
-    if not t_s - t_last <= k[5]:  # the channel's first sample (NaN), or after a gap
+    if not t_s - t_last <= k[RK_GAP_S]:  # the channel's first sample (NaN), or after a gap
         for i in range(3):
             rest[lp + i] = x[i]
         _rest_break(rest)
         return False
-    a = 1.0 - math.exp(-(t_s - t_last) / k[0])
+    a = 1.0 - math.exp(-(t_s - t_last) / k[RK_TAU_S])
     d2 = 0.0
     for i in range(3):
         rest[lp + i] += a * (x[i] - rest[lp + i])
         e = x[i] - rest[lp + i]
         d2 += e * e
-    if d2 >= k[1 + accel]:
+    if d2 >= k[RK_TH_GYRO2 + accel]:  # RK_TH_ACCEL2 follows RK_TH_GYRO2
         _rest_break(rest)
         return False
-    if math.isnan(rest[8]):
-        rest[8] = t_s
+    if math.isnan(rest[REST_SINCE]):
+        rest[REST_SINCE] = t_s
         return False
-    if t_s - rest[8] < k[3]:
+    if t_s - rest[REST_SINCE] < k[RK_MIN_S]:
         return False
-    if rest[15] + rest[16] == 0.0:
-        rest[17] = t_s
-        for i in range(9, 15):
+    if rest[REST_COUNT] + rest[REST_COUNT + 1] == 0.0:
+        rest[REST_CHUNK_T0] = t_s
+        for i in range(REST_SUM, REST_SUM + 6):
             rest[i] = 0.0
     for i in range(3):
-        rest[9 + 3 * accel + i] += x[i]
-    rest[15 + accel] += 1.0
-    if accel or t_s - rest[17] < k[4] or rest[16] == 0.0:
+        rest[REST_SUM + 3 * accel + i] += x[i]
+    rest[REST_COUNT + accel] += 1.0
+    if accel or t_s - rest[REST_CHUNK_T0] < k[RK_CHUNK_S] or rest[REST_COUNT + 1] == 0.0:
         return False
     g = np.empty(3)
     f = np.empty(3)
     dg = df = 0.0
     for i in range(3):
-        g[i] = rest[9 + i] / rest[15]
-        f[i] = rest[12 + i] / rest[16]
-        dg += (g[i] - rest[18 + i]) ** 2
-        df += (f[i] - rest[21 + i]) ** 2
-    ready = rest[24] > 0.0 and dg < k[6] and df < k[7]
+        g[i] = rest[REST_SUM + i] / rest[REST_COUNT]
+        f[i] = rest[REST_SUM + 3 + i] / rest[REST_COUNT + 1]
+        dg += (g[i] - rest[REST_PREV_GYRO + i]) ** 2
+        df += (f[i] - rest[REST_PREV_ACCEL + i]) ** 2
+    ready = rest[REST_HAVE_PREV] > 0.0 and dg < k[RK_AGREE_GYRO2] and df < k[RK_AGREE_ACCEL2]
     for i in range(3):
-        rest[25 + i] = rest[18 + i]
-        rest[18 + i] = g[i]
-        rest[21 + i] = f[i]
-    rest[24] = 1.0 if rest[24] == 0.0 or ready else 0.0  # a disagreeing pair: neither is rest
-    rest[15] = rest[16] = 0.0
+        rest[REST_RATE + i] = rest[REST_PREV_GYRO + i]
+        rest[REST_PREV_GYRO + i] = g[i]
+        rest[REST_PREV_ACCEL + i] = f[i]
+    # a disagreeing pair: neither is rest
+    rest[REST_HAVE_PREV] = 1.0 if rest[REST_HAVE_PREV] == 0.0 or ready else 0.0
+    rest[REST_COUNT] = rest[REST_COUNT + 1] = 0.0
     return ready
 
 

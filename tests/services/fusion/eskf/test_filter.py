@@ -12,6 +12,7 @@ import pytest
 
 from services.fusion.eskf import kernels
 from services.fusion.eskf.filter import E_Z, N, TrackingFilter, skew
+from services.fusion.eskf.layout import REST_RATE
 from services.fusion.eskf.measurement import VisionObservation
 from services.fusion.eskf.params import Params
 from tiplog.calibration import Calibration
@@ -731,7 +732,7 @@ def test_rest_releases_the_mean_rate_of_a_still_tool_chunk_by_chunk():
     released = []
     for t, kind, x in _still_imu(6.0, bias, np.array([0.0, 0.0, 9.8])):
         if kernels.rest_sample(rest, x, t, kind, k):
-            released.append((t, rest[25:28].copy()))
+            released.append((t, rest[REST_RATE : REST_RATE + 3].copy()))
     # at rest after rest_min_ms; a chunk is released when the next one has agreed with it
     first = (prm.rest_min_ms + 2 * prm.rest_chunk_ms) * 1e-3
     assert first <= released[0][0] < first + 0.1, released[0][0]
