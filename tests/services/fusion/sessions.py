@@ -2,35 +2,33 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 from google.protobuf.message import Message
 
+from tests.helpers.run_once import run_once
 from tiplog.calibration import Calibration
 from tiplog.cli import main as tiplog_main
 from tiplog.geometry import quat_to_rot
 from tiplog.mcap_io import McapWriter, read_messages, read_metadata
 
-_CACHE: dict[tuple, Path] = {}
-
 
 def bench_session(
     tmp_path_factory, scenario: str = "teleop", seed: int = 11, duration_s: float = 9.0, profile: str | None = None
 ) -> Path:
-    """A bench session, generated once per test run; `profile` overrides the scenario's bench
-    profile (the default is the paper's conditions)."""
-    key = (scenario, seed, duration_s, profile)
-    if key not in _CACHE:
-        d = tmp_path_factory.mktemp(f"fusion_{scenario}_{seed}")
-        path = d / f"{scenario}.mcap"
+    """A bench session, generated once per test run (by one worker when the run is parallel);
+    `profile` overrides the scenario's bench profile (the default is the paper's conditions)."""
+
+    def generate(path: Path) -> None:
         args = ["sim", "generate", "--scenario", scenario, "--seed", str(seed), "--duration", str(duration_s)]
         if profile is not None:
             args += ["--set", f"profile={profile}"]
         assert tiplog_main([*args, "--out", str(path), "--quiet"]) == 0
-        _CACHE[key] = path
-    return _CACHE[key]
+
+    return run_once(tmp_path_factory, f"{scenario}_{seed}_{duration_s:g}s_{profile or 'default'}.mcap", generate)
 
 
 def bench_geometry(tmp_path_factory) -> tuple[Calibration, np.ndarray]:
@@ -42,13 +40,14 @@ def bench_geometry(tmp_path_factory) -> tuple[Calibration, np.ndarray]:
 
 
 def bench_estimate(tmp_path_factory, session: Path) -> Path:
-    """`tiplog fusion run` on `session` with the built-in parameters, once per test run (read only)."""
-    key = ("estimate", str(session))
-    if key not in _CACHE:
-        out = tmp_path_factory.mktemp(f"est_{session.stem}") / "est.mcap"
+    """`tiplog fusion run` on `session` (a `bench_session`) with the built-in parameters, once per
+    test run (read only)."""
+
+    def run(out: Path) -> None:
         assert tiplog_main(["fusion", "run", str(session), "--out", str(out), "--quiet"]) == 0
-        _CACHE[key] = out
-    return _CACHE[key]
+
+    tag = hashlib.sha1(str(session).encode()).hexdigest()[:10]
+    return run_once(tmp_path_factory, f"est_{session.stem}_{tag}.mcap", run)
 
 
 def inputs(path: Path) -> list[tuple[str, Message, int]]:
