@@ -25,7 +25,7 @@ def test_kill_9_is_restarted_reported_and_the_recording_stays_valid(tmp_path):
     ep = f"tcp/127.0.0.1:{free_port()}"
     cfg = tmp_path / "up.yaml"
     cfg.write_text(
-        f"recorder:\n  out_dir: {tmp_path}/rec\n  autostart: always\n  min_free_bytes: 0\ndashboard:\n  port: 18123\n"
+        f"recorder:\n  out_dir: {tmp_path}/rec\n  autostart: always\n  min_free_bytes: 0\ndashboard:\n  port: {free_port()}\n"
     )
     calibration = tmp_path / "calibration.yaml"
     write_calibration(BenchConfig(scenario="static", calibration_file=str(calibration)))
