@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from services.fusion.eskf.so3 import skew
 from tiplog.calibration import Calibration
 from tiplog.geometry import rot_between
 from tiplog.geometry.vision import closest_axis_point, p0_from_normals, ray_axis_intersection, trocar_gate
@@ -37,16 +38,15 @@ E_S = np.array([0.0, 0.0, 1.0])  # shaft axis in tool coordinates (distal)
 G_MPS2 = 9.81
 _DEG = math.pi / 180.0
 _CHI2 = {1: 10.83, 2: 13.82, 3: 16.27}  # 99.9 %
+
+
 _I3 = np.eye(3)
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """(3,) -> (3, 3) cross-product matrix (scalar path: the filter's hot loop)."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues, scalar path)."""
+    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues, scalar path). Its own small-angle
+    branch (first order below 1e-8 rad) and rounding, which the static protocols' figures
+    reproduce bit for bit."""
     th = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
     K = skew(phi)
     if th < 1e-8:

@@ -40,6 +40,7 @@ import numpy as np
 
 from services.fusion.eskf import kernels
 from services.fusion.eskf.layout import REST_RATE, rest_constants
+from services.fusion.eskf.so3 import quat_matrix, quat_mul
 
 try:  # a dependency (compiles the time loop, about 100x faster); plain Python where it is absent
     from numba import njit
@@ -157,25 +158,6 @@ def _lp_init(x: float, s: np.ndarray, k: int) -> None:
     """Channel state s[k], s[k + 1] at rest on a constant input x."""
     s[k] = x
     s[k + 1] = 0.0
-
-
-@jit
-def quat_mul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    w = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
-    x = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
-    y = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
-    z = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    out[0], out[1], out[2], out[3] = w / n, x / n, y / n, z / n
-
-
-@jit
-def quat_matrix(q: np.ndarray, R: np.ndarray) -> None:
-    """Rotation matrix (row-major, 9) of the unit quaternion q (w, x, y, z)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    R[0], R[1], R[2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    R[3], R[4], R[5] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    R[6], R[7], R[8] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
 
 
 @jit

@@ -31,9 +31,8 @@ from services.fusion.attitude.filter import (
     jit,
     lowpass,
     lowpass_coeffs,
-    quat_matrix,
-    quat_mul,
 )
+from services.fusion.eskf.so3 import quat_matrix, quat_mul
 
 
 @jit

@@ -51,23 +51,17 @@ from services.fusion.eskf.layout import (
 from services.fusion.eskf.maps import AccelMap, TofMap
 from services.fusion.eskf.measurement import VisionObservation
 from services.fusion.eskf.params import SENSORS, Params
+from services.fusion.eskf.so3 import cross, skew
 from tiplog.calibration import Calibration
 
 E_Z = np.array([0.0, 0.0, 1.0])
 DEG = math.pi / 180.0
 
 
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a x b for (3,) vectors (np.cross is slow on single vectors)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues, scalar fast path)."""
+    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues as I + a K + b K^2). Not
+    `so3.exp_so3`, which writes the entries out and rounds differently in the last bits: a
+    re-acquired state (the only user) is reproduced bit for bit by this form."""
     x, y, z = float(w[0]), float(w[1]), float(w[2])
     th2 = x * x + y * y + z * z
     if th2 < 1e-12:

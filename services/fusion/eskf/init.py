@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from services.fusion.eskf.so3 import cross
+
 E_Z = np.array([0.0, 0.0, 1.0])
 
 
@@ -47,16 +49,12 @@ def shaft_from_tilt(f_imu: np.ndarray, R_tool_imu: np.ndarray, heading_base: np.
     return np.array([s * h[0], s * h[1], uz])
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
 def perp_basis(d: np.ndarray) -> np.ndarray:
     """(2, 3) orthonormal rows perpendicular to unit d."""
     a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = _cross(d, a)
+    e1 = cross(d, a)
     e1 /= np.linalg.norm(e1)
-    return np.stack([e1, _cross(d, e1)])
+    return np.stack([e1, cross(d, e1)])
 
 
 def closest_params(p0: np.ndarray, u: np.ndarray, d: np.ndarray) -> tuple[float, float]:

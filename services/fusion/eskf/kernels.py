@@ -59,59 +59,14 @@ from services.fusion.eskf.layout import (
     RK_TH_GYRO2,
     N,
 )
-
-
-@njit(cache=True, fastmath=False)
-def _exp(wx: float, wy: float, wz: float, out: np.ndarray) -> None:
-    th2 = wx * wx + wy * wy + wz * wz
-    if th2 < 1e-12:
-        a = 1.0 - th2 / 6.0
-        b = 0.5 - th2 / 24.0
-    else:
-        th = math.sqrt(th2)
-        a = math.sin(th) / th
-        b = (1.0 - math.cos(th)) / th2
-    out[0, 0] = 1.0 - b * (wy * wy + wz * wz)
-    out[1, 1] = 1.0 - b * (wx * wx + wz * wz)
-    out[2, 2] = 1.0 - b * (wx * wx + wy * wy)
-    out[0, 1] = -a * wz + b * wx * wy
-    out[1, 0] = a * wz + b * wx * wy
-    out[0, 2] = a * wy + b * wx * wz
-    out[2, 0] = -a * wy + b * wx * wz
-    out[1, 2] = -a * wx + b * wy * wz
-    out[2, 1] = a * wx + b * wy * wz
-
-
-@njit(cache=True)
-def exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] -> rotation matrix (3, 3)."""
-    out = np.empty((3, 3))
-    _exp(w[0], w[1], w[2], out)
-    return out
-
-
-@njit(cache=True)
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    out = np.empty(3)
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-    return out
+from services.fusion.eskf.so3 import cross, exp_into, skew
 
 
 @njit(cache=True)
 def _lever_accel(w_tool: np.ndarray, alpha_tool: np.ndarray, r_lever_tool: np.ndarray) -> np.ndarray:
     """alpha x r + w x (w x r): the tip's acceleration relative to the IMU's, in tool coordinates,
     where the lever arm r and so these terms are fixed (they turn with the tool)."""
-    return _cross(alpha_tool, r_lever_tool) + _cross(w_tool, _cross(w_tool, r_lever_tool))
-
-
-@njit(cache=True)
-def _skew(v: np.ndarray) -> np.ndarray:
-    out = np.zeros((3, 3))
-    out[0, 1], out[0, 2], out[1, 0] = -v[2], v[1], v[2]
-    out[1, 2], out[2, 0], out[2, 1] = -v[0], -v[1], v[0]
-    return out
+    return cross(alpha_tool, r_lever_tool) + cross(w_tool, cross(w_tool, r_lever_tool))
 
 
 @njit(cache=True)
@@ -181,16 +136,16 @@ def propagate(
         wn = math.sqrt(w_tool[0] ** 2 + w_tool[1] ** 2 + w_tool[2] ** 2)
         # F_vth = -R [a_tool]x dt: the lever arm's terms turn with the tool as the specific
         # force does (they were left out, as if fixed in the base frame)
-        F_vth = _mm(R, _skew(a_tool)) * -dt
+        F_vth = _mm(R, skew(a_tool)) * -dt
         F_vba = _mm(R, R_ti) * -dt
-        _exp(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, F_thth)
+        exp_into(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, F_thth)
         F_thbg = R_ti * -dt
         s = bg_rw_static + bg_rw_per_radps * wn
         qq[9] = qq[10] = qq[11] = s * s
         if qq[15] > 0.0:
             qq[15] += brho_per_rad * wn
         dR = np.empty((3, 3))
-        _exp(w_tool[0] * dt, w_tool[1] * dt, w_tool[2] * dt, dR)
+        exp_into(w_tool[0] * dt, w_tool[1] * dt, w_tool[2] * dt, dR)
         R[:, :] = _mm(R, dR)
     else:
         a = np.zeros(3)
@@ -348,7 +303,7 @@ def inject(
     P is carried to the new estimate as the covariance of the invariant error (`reset`)."""
     R0 = R.copy()
     dR = np.empty((3, 3))
-    _exp(dx[6], dx[7], dx[8], dR)
+    exp_into(dx[6], dx[7], dx[8], dR)
     R[:, :] = _mm(R, dR)
     for i in range(3):
         p[i] += dx[i]
@@ -375,8 +330,8 @@ def reset(P: np.ndarray, R0: np.ndarray, dR: np.ndarray, step_p: np.ndarray, ste
     G = T(new) T(old)^-1 is the identity but for dtheta' = dR^T dtheta,
     dp' = dp - [step_p]x R0 dtheta, dv' = dv - [step_v]x R0 dtheta: P <- G P G^T."""
     M = np.empty((9, 3))  # G's dtheta columns: -[step_p]x R0, -[step_v]x R0, dR^T
-    M[0:3] = -_mm(_skew(step_p), R0)
-    M[3:6] = -_mm(_skew(step_v), R0)
+    M[0:3] = -_mm(skew(step_p), R0)
+    M[3:6] = -_mm(skew(step_v), R0)
     M[6:9] = dR.T
     # rows: GP[i] = P[i] + M[i] P[6:9] (i < 6), GP[6 + i] = M[6 + i] P[6:9]
     Pt = P[6:9, :].copy()
@@ -822,12 +777,12 @@ def transition(
     if imu:
         w_tool = R_ti @ (w_imu - bg)
         a_tool = R_ti @ (f_imu - ba) + _lever_accel(w_tool, alpha_tool, r_lever_tool)
-        F[3:6, 6:9] = -(R @ _skew(a_tool)) * dt
+        F[3:6, 6:9] = -(R @ skew(a_tool)) * dt
         F[3:6, 12:15] = -(R @ R_ti) * dt
         F[0:3, 6:9] = F[3:6, 6:9] * (0.5 * dt)
         F[0:3, 12:15] = F[3:6, 12:15] * (0.5 * dt)
         E = np.empty((3, 3))
-        _exp(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, E)
+        exp_into(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, E)
         F[6:9, 6:9] = E
         F[6:9, 9:12] = -R_ti * dt
     return F

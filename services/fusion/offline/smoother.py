@@ -16,6 +16,7 @@ from services.fusion.eskf import kernels
 from services.fusion.eskf.filter import State
 from services.fusion.eskf.params import SENSORS, Params
 from services.fusion.eskf.sample import StateSample, make_sample
+from services.fusion.eskf.so3 import exp_so3
 from services.fusion.timing.runner import FusionRunner
 from tiplog.calibration import Calibration
 from tiplog.geometry import so3_log
@@ -115,7 +116,7 @@ def _backward(rec: _Recorder, gyro_nodes: list[int], runner: FusionRunner, calib
         d[15] = nxt[6] - brp
         dx = rec.gain[i] @ d
         smoothed[i] = (
-            t, p + dx[0:3], v + dx[3:6], R @ kernels.exp_so3(dx[6:9]), bg + dx[9:12], ba + dx[12:15],
+            t, p + dx[0:3], v + dx[3:6], R @ exp_so3(dx[6:9]), bg + dx[9:12], ba + dx[12:15],
             brho + dx[15], P,
         )  # fmt: skip
     out = []

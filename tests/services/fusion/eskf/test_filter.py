@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from services.fusion.eskf import kernels
-from services.fusion.eskf.filter import E_Z, N, TrackingFilter, skew
+from services.fusion.eskf.filter import E_Z, N, TrackingFilter
 from services.fusion.eskf.layout import REST_RATE
 from services.fusion.eskf.measurement import VisionObservation
 from services.fusion.eskf.params import Params
+from services.fusion.eskf.so3 import skew
 from tiplog.calibration import Calibration
 from tiplog.geometry import rot_between, so3_exp
 from tiplog.geometry import vision as vg
