@@ -72,7 +72,7 @@ class StaticParams:
     accel_max_rate_dps: float = 2.0
     plane_sigma_deg: float = 0.45  # 0.113 deg held out x sqrt(15)
     vision_depth_sigma_mm: float = 1.8  # 0.47 mm x sqrt(15)
-    p0_sigma_mm: float = 0.0  # closest axis point off the line through the RCM; 0: off (no gain on seed 1000)
+    p0_sigma_mm: float = 0.0  # closest axis point off the line through the RCM; 0: off
     tof_sigma_mm: float = 30.0  # 3.04 mm pose-locked across poses x sqrt(100 samples per pose)
     junction_min_sin2: float = 0.45
     trocar_gate_mm: float = 0.0  # 0: off (the n_L x n_R line is ill-conditioned; the planes are gated on innovation)

@@ -24,11 +24,11 @@ the bias pinned at both ends; see docs/fusion-live.md). The gyro link turns the
 gyro's rates through the IMU mounting as the filter has learnt it by the session's end.
 
 The mounting is learnt in the rotation protocol only, and only from a calibration that does not
-state how well it knows it (`R_tool_imu_sd_deg`; `tiplog calibrate` states its fit's, 0.09 deg
-on the bench, better than the 0.01-0.19 deg that the trials teach). A translation trial turns the
+state how well it knows it (`R_tool_imu_sd_deg`; `tiplog calibrate` states its fit's, which is
+better than what the trials can teach). A translation trial turns the
 tool by a few degrees, and the accelerometer's pose-locked errors between its two windows (0.21
 deg per pose) then read as a mounting error many times larger, which the next trial takes back,
-and the translation error grows by half. Otherwise the
+and the translation error grows. Otherwise the
 calibration's mounting is held (`init_mount_deg` 0), unless the caller gives its own parameters.
 """
 

@@ -466,10 +466,10 @@ class TrackingFilter:
         passes the gate but exceeds `tip_confirm_chi2` is held; it is applied when the next
         tip (within `tip_confirm_ms`) is as surprising in the same way (the two residuals,
         tip to ray in camera coordinates, within `tip_confirm_mm`), and dropped otherwise
-        (`rejected:vision_tip:unconfirmed`). Without it the labeler's gross junction errors
-        (1 frame in 500, 5-25 mm along the shaft) passed the gate once the depth had grown
-        uncertain between frames, and, without the ToF, the velocity they left carried the
-        tip tens of millimetres away while the true junctions that followed were gated out.
+        (`rejected:vision_tip:unconfirmed`). Why: the labeler's rare gross junction errors (millimetres
+        to centimetres along the shaft) pass the gate once the depth has grown uncertain between
+        frames, and, without the ToF, the velocity they leave carries the tip away while the
+        true junctions that follow are gated out.
         At most two tips in a row wait: a surprising tip that disagrees with a held one that
         had itself replaced a dropped one is applied, so a state moving fast against vision
         (without the IMU, or after a gross error got in) is never left to vision's gate alone."""

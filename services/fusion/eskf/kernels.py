@@ -135,7 +135,7 @@ def propagate(
         a[2] -= 9.80665
         wn = math.sqrt(w_tool[0] ** 2 + w_tool[1] ** 2 + w_tool[2] ** 2)
         # F_vth = -R [a_tool]x dt: the lever arm's terms turn with the tool as the specific
-        # force does (they were left out, as if fixed in the base frame)
+        # force does, not as if fixed in the base frame
         F_vth = _mm(R, skew(a_tool)) * -dt
         F_vba = _mm(R, R_ti) * -dt
         exp_into(-w_tool[0] * dt, -w_tool[1] * dt, -w_tool[2] * dt, F_thth)
@@ -380,8 +380,8 @@ def gyro_step(
     q: np.ndarray, k: np.ndarray, dt: float, imu: bool, w_new: np.ndarray, w_old: np.ndarray, dt_alpha: float,
     rcm: np.ndarray, do_rcm: bool, freeze_last: bool, rest: np.ndarray, t_s: float, rest_k: np.ndarray,
 ) -> tuple[int, float, float, int, bool]:  # fmt: skip
-    """Everything one gyro sample does, in one call (the filter's per-sample Python overhead was
-    half its time): `propagate_held` over dt with the held samples (w_held, f_imu, alpha_tool);
+    """Everything one gyro sample does, in one call (called per step from Python, the overhead
+    would be about half the filter's time): `propagate_held` over dt with the held samples (w_held, f_imu, alpha_tool);
     the angular acceleration alpha_tool = R_ti (w_new - w_old) / dt_alpha (zero when dt_alpha is 0,
     unchanged when negative); then, if do_rcm, the RCM update (variance k[GK_RCM_VAR] per axis,
     gate k[GK_RCM_CHI2]); then the state's `health`; last, with the IMU, w_new at t_s [s] through
@@ -470,7 +470,7 @@ def kernel_mean(
     K: np.ndarray, k2: np.ndarray, E: np.ndarray, T: np.ndarray, n: int, t_lo: int, R: np.ndarray, p: np.ndarray,
     wk: np.ndarray, out: np.ndarray,
 ) -> float:  # fmt: skip
-    """The pose maps' query (`tof_map`): of the entries 0:n with keys K (., 12), their
+    """The pose maps' query (`maps`): of the entries 0:n with keys K (., 12), their
     weighted square norms k2, values E (., d) and times T (ascending), those at or after t_lo,
     weighted w_i = exp(-|K_i - q|^2_W / 2) with q the pose (R, p) as a key and W = diag(wk);
     writes sum_i w_i E_i to out (d,) and returns sum_i w_i. Entries past 12 kernel widths (a

@@ -85,7 +85,7 @@ def _bars(plt, res: dict[str, Any]):
 def write_plots(
     res: dict[str, Any], folder: Path, names: list[str], params: MetricsParams, force: bool = False
 ) -> list[Path]:
-    """Write the files `names` (from `metrics_cli.plot_names`) into `folder`."""
+    """Write the files `names` (from `skill.cli.plot_names`) into `folder`."""
     plt = pyplot()
     out = []
     for i, (name, est, truth) in enumerate(res["_series"]):
