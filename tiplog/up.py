@@ -106,7 +106,10 @@ def calibration_sets(
     else:
         return sets, None
     for n in names:
-        if n in CALIBRATION_READERS and "calibration_file" in _config_fields(n):
+        fields = _config_fields(n) if n in CALIBRATION_READERS else set()
+        # A reader whose model did not import here (an import that failed in this process only)
+        # gets it too: fusion without it refuses to start, and again at each restart.
+        if n in CALIBRATION_READERS and (not fields or "calibration_file" in fields):
             sets[n].append(f"calibration_file={path}")
     return sets, path
 

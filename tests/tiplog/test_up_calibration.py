@@ -22,6 +22,15 @@ def test_with_the_bench_its_file_goes_to_every_reader(tmp_path):
     assert sets["fusion"] == want
 
 
+def test_a_reader_whose_model_did_not_import_here_still_gets_it(tmp_path, monkeypatch):
+    import tiplog.up
+
+    monkeypatch.setattr(tiplog.up, "config_model", lambda name: None)
+    sets, path = calibration_sets(["bench", "sensor_gateway", "fusion"], None, tmp_path)
+    assert sets["fusion"] == [f"calibration_file={path}"]
+    assert sets["sensor_gateway"] == []  # not a reader
+
+
 def test_a_users_file_replaces_the_bench_one(tmp_path):
     mine = tmp_path / "mine.yaml"
     write_calibration(BenchConfig(scenario="static", calibration_file=str(mine)))
