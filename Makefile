@@ -41,8 +41,15 @@ $(MCAP_NODE)/node_modules/.installed: $(MCAP_NODE)/package-lock.json
 	if command -v npm >/dev/null; then cd $(MCAP_NODE) && npm ci --no-audit --no-fund && touch node_modules/.installed; \
 	else echo "npm not found: the TypeScript MCAP reader test will be skipped"; fi
 
+# The suite on TEST_WORKERS processes (pytest-xdist). Most tests wait on subprocesses, the bus and
+# sleeps more than they compute, hence more workers than a two-core machine has cores. loadgroup:
+# the tests that start a whole system run on one worker in turn (WHOLE_SYSTEM in
+# tests/conftest.py); the few that assert a wall-clock deadline run alone afterwards (REALTIME).
+# `python -m pytest -q` still runs the whole suite in one process.
+TEST_WORKERS ?= 4
 test: $(STAMP) $(KERNELS) browser compose $(MCAP_NODE)/node_modules/.installed
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not realtime"
+	$(PY) -m pytest -q -m realtime
 
 # Regenerate tiplog/v1 from proto/ (tests fail when the committed code differs).
 proto: $(STAMP)

@@ -50,3 +50,37 @@ def _bench_pass_cache(tmp_path_factory: pytest.TempPathFactory):
         os.environ.pop(key, None)
     else:
         os.environ[key] = before
+
+
+# Tests that start a whole system (router, bench, gateway, vision, fusion, recorder, dashboard as
+# processes) and assert on its rates and deadlines. Two of them at once overload a two-core
+# machine, so a parallel run (`make test`: --dist loadgroup) gives them all to one worker, in turn,
+# while the other workers run the rest.
+WHOLE_SYSTEM = (
+    "tests/system/",
+    "tests/services/dashboard/test_browser.py",
+    "tests/services/dashboard/test_browser_demo.py",
+    "tests/services/dashboard/test_browser_real.py",
+    "tests/services/dashboard/test_fuzz.py",
+    "tests/tiplog/test_up.py::test_up_runs_every_service",
+    "tests/tiplog/test_up_supervisor.py",
+    "tests/deploy/test_compose.py::test_each_container_command",
+)
+
+
+# Tests that assert a wall-clock deadline of the product (a service stopped within 2 s of its
+# signal, a replay within 1 ms of the recorded timing): `make test` runs them after the parallel
+# run, alone (marker `realtime`), so that they measure the product and not three other workers.
+REALTIME = (
+    "tests/services/test_service_lifecycle.py::test_service_joins_and_stops_on_signal",
+    "tests/services/recorder/test_over_bus.py::test_replay_then_record_is_identical_in_content_and_timing",
+)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.nodeid.startswith(WHOLE_SYSTEM):
+            item.add_marker(pytest.mark.xdist_group("whole_system"))
+        if item.nodeid.startswith(REALTIME):
+            item.add_marker(pytest.mark.realtime)
