@@ -19,7 +19,7 @@ INPUT_TOPICS = ("device/gyro", "device/accel", "device/tof", "device/status", "v
 # The paper's module (BNO085, VL53L0X) and camera; a device's own hello (the recording's `device`
 # metadata) overrides the device streams', so a module with other rates is checked against it.
 NOMINAL_HZ = {"device/gyro": 200.0, "device/accel": 240.0, "device/tof": 100.0, "vision/observation": 15.0}
-RATE_TOLERANCE = 0.5  # a stream below half or above twice its nominal rate is refused
+RATE_TOLERANCE = 0.5  # an IMU or ToF stream below half or above twice its nominal rate is refused
 
 
 def recording_metadata(src: Path) -> dict[str, dict[str, str]]:
@@ -66,9 +66,14 @@ def check_streams(src: Path, sensors: frozenset[str], announced: dict[str, float
         first, last = spans.get(t, (0, 0))
         rate = (counts[t] - 1) / ((last - first) * 1e-9) if last > first else 0.0
         nominal = announced.get(t, NOMINAL_HZ[t])
-        high = float("inf") if t == "vision/observation" else nominal / RATE_TOLERANCE  # a faster camera is fine
-        if not (nominal * RATE_TOLERANCE <= rate <= high):
-            whose = "announced by the device" if t in announced else "default; the recording names no device rates"
+        whose = "announced by the device" if t in announced else "default; the recording names no device rates"
+        if t == "vision/observation":
+            # vision sheds stale frames on a loaded host by design, and a faster camera is fine:
+            # a slow vision stream is a recording to process, with a word about it
+            if rate < nominal * RATE_TOLERANCE:
+                log.warning("%s: %s at %.1f Hz, below its nominal %.0f Hz (%s)", src, t, rate, nominal, whose)
+            continue
+        if not (nominal * RATE_TOLERANCE <= rate <= nominal / RATE_TOLERANCE):
             raise UserError(f"{src}: {t} at {rate:.1f} Hz, far off its nominal {nominal:.0f} Hz ({whose})")
 
 

@@ -63,6 +63,28 @@ def test_bad_inputs_one_line_exit_2(tmp_path, capsys, session, estimate):
     assert not (tmp_path / "o.mcap").exists() and not (tmp_path / "r.json").exists()
 
 
+def test_a_slow_vision_stream_is_processed_with_a_warning(tmp_path, session, capfd):
+    """Vision sheds stale frames on a loaded cart by design: a live recording with vision at a
+    fifth of its rate is a recording to process (with a warning naming the rate), not one to
+    refuse as the IMU's would be."""
+    slow = tmp_path / "slow_vision.mcap"
+    kept = 0
+    with McapWriter(slow) as w:
+        for name, rec in read_metadata(session).items():
+            w.add_metadata(name, rec)
+        for r in read_messages(session):
+            if r.topic == "vision/observation":
+                kept += 1
+                if kept % 5:
+                    continue
+            w.write(r.topic, r.message, r.log_time_ns)
+    out = tmp_path / "o.mcap"
+    assert tiplog_main(["fusion", "run", str(slow), "--out", str(out), "--quiet"]) == 0
+    assert out.exists()
+    err = capfd.readouterr().err
+    assert "vision/observation at 3.0 Hz, below its nominal 15 Hz" in err, err
+
+
 def test_a_module_with_other_rates_is_checked_against_the_rates_it_announced(tmp_path, capsys):
     """A lab's own module (gyro and accelerometer at 100 Hz, ToF at 50) runs: the rates it
     announced (the `device` metadata), not the paper's module's, are the nominal ones."""
