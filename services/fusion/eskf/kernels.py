@@ -360,17 +360,24 @@ def propagate_held(
     q: np.ndarray, k: np.ndarray, dt: float, imu: bool,
 ) -> None:  # fmt: skip
     """`propagate` over dt with the latest samples held, k the gyro-step constants (`layout.GK_*`).
-    Past k[GK_IMU_GAP_S] without an IMU sample (a stalled host) the held specific force says
-    little about the motion, so the velocity gets the uncertainty it has without an IMU,
-    k[GK_NO_IMU_Q], for every further second (held alone, a tool that was accelerating would run
-    off)."""
+    Past k[GK_IMU_GAP_S] without an IMU sample (a stalled host) the held samples say little about
+    the motion: the rest of the step is propagated as without an IMU (the velocity held, no
+    rotation), and the velocity gets the uncertainty it has without an IMU, k[GK_NO_IMU_Q], for
+    every further second (integrating a held specific force or rate for the whole stall ran a
+    tool that was accelerating off by tens of centimetres)."""
+    gap = k[GK_IMU_GAP_S]
+    held = dt if not (imu and dt > gap) else gap
     propagate(
-        p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[GK_BG_RW], k[GK_BG_RW_PER_RADPS], dt,
+        p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[GK_BG_RW], k[GK_BG_RW_PER_RADPS], held,
         imu, k[GK_BRHO_PER_RAD],
     )  # fmt: skip
-    if imu and dt > k[GK_IMU_GAP_S]:
+    if imu and dt > gap:
+        propagate(
+            p, v, R, P, bg, ba, w_held, f_imu, alpha_tool, R_ti, r_lever_tool, q, k[GK_BG_RW], k[GK_BG_RW_PER_RADPS],
+            dt - gap, False, k[GK_BRHO_PER_RAD],
+        )  # fmt: skip
         for i in range(3, 6):
-            P[i, i] += k[GK_NO_IMU_Q] * (dt - k[GK_IMU_GAP_S])
+            P[i, i] += k[GK_NO_IMU_Q] * (dt - gap)
 
 
 @njit(cache=True)

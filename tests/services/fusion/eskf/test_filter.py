@@ -126,10 +126,12 @@ def test_the_propagation_jacobian_is_the_derivative_of_the_step():
         np.testing.assert_allclose((step(R, ba + e) - base) / eps, F[0:6, 12 + j], rtol=1e-5, atol=1e-9)
 
 
-def test_a_stall_past_the_imu_gap_gives_the_velocity_its_no_imu_uncertainty():
-    """`propagate_held` (every propagation of the filter): past the IMU gap, the velocity's
-    variance grows by the no-IMU noise for each further second, on top of `propagate`; within
-    the gap, or without an IMU, it is `propagate` exactly."""
+def test_a_stall_past_the_imu_gap_holds_the_velocity_and_gives_it_its_no_imu_uncertainty():
+    """`propagate_held` (every propagation of the filter): within the IMU gap, or without an IMU,
+    it is `propagate` exactly. Past the gap the held samples drive only the gap itself; the rest
+    of the stall is propagated as without an IMU (velocity held, no rotation), and the velocity's
+    variance grows by the no-IMU noise for each further second. Integrating the held specific
+    force over a whole stall ran an accelerating tool off by tens of centimetres."""
     f = TrackingFilter(_calib(), Params())
     k = f._gyro_k
     rng = np.random.default_rng(2)
@@ -138,25 +140,35 @@ def test_a_stall_past_the_imu_gap_gives_the_velocity_its_no_imu_uncertainty():
     R0 = so3_exp(rng.normal(size=3))
     args = [rng.normal(size=3) for _ in range(5)]  # bg, ba, w, f, alpha
 
-    def run(kernel, dt, imu):
+    def run(kernel, dt, imu, then=None):
         P, R = P0.copy(), R0.copy()
         p, v = np.zeros(3), np.zeros(3)
         bg, ba, w, fi, alpha = (a.copy() for a in args)
         if kernel is kernels.propagate:
             kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k[0], k[1], dt, imu, k[8])
+            if then is not None:
+                kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k[0], k[1], then, False, k[8])
         else:
             kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k, dt, imu)
-        return P
+        return P, p, v, R
 
     gap = Params().imu_gap_ms * 1e-3
     assert k[2] == pytest.approx(gap) and k[3] > 0
     dt = gap + 0.3
-    added = run(kernels.propagate_held, dt, True) - run(kernels.propagate, dt, True)
+    P_h, p_h, v_h, R_h = run(kernels.propagate_held, dt, True)
+    P_r, p_r, v_r, R_r = run(kernels.propagate, gap, True, then=0.3)
+    added = P_h - P_r
     np.testing.assert_allclose(np.diag(added)[3:6], k[3] * 0.3, rtol=1e-9)
     added[3:6, 3:6] -= np.eye(3) * k[3] * 0.3
     np.testing.assert_allclose(added, 0.0, atol=1e-15)
+    np.testing.assert_array_equal(R_h, R_r)
+    np.testing.assert_array_equal(v_h, run(kernels.propagate, gap, True)[2])  # no acceleration past the gap
+    np.testing.assert_allclose(p_h, p_r, atol=1e-15)
+    # the whole stall under the held samples would move it much further
+    p_all = run(kernels.propagate, dt, True)[1]
+    assert np.linalg.norm(p_all) > 3 * np.linalg.norm(p_h)  # 0.5 a dt^2 against a gap (gap / 2 + 0.3 s)
     for step, imu in ((gap * 0.9, True), (dt, False)):
-        np.testing.assert_array_equal(run(kernels.propagate_held, step, imu), run(kernels.propagate, step, imu))
+        np.testing.assert_array_equal(run(kernels.propagate_held, step, imu)[0], run(kernels.propagate, step, imu)[0])
 
 
 def test_the_tof_offset_walks_as_the_tool_turns_only_while_it_is_free():
