@@ -13,11 +13,12 @@ $(STAMP): pyproject.toml
 	rm -f $(VENV)/.installed-*
 	touch $@
 
-# Fusion's compiled kernels into numba's cache at install, not at the first start, where they
-# take 40-90 s on two cores (services/fusion/live/warmup.py). numba keys its cache on kernels.py's
-# modification time, and so does this target.
+# Fusion's compiled kernels (the tracking filter's and `tiplog fusion attitude`'s) into numba's
+# cache at install, not at the first start or run, where they take 40-90 s on two cores
+# (services/fusion/live/warmup.py). numba keys its cache on each kernel file's modification time;
+# this target re-runs when a file of the filter's core or the attitude filter changes.
 KERNELS := $(VENV)/.kernels-ready
-$(KERNELS): $(STAMP) services/fusion/eskf/kernels.py
+$(KERNELS): $(STAMP) $(wildcard services/fusion/eskf/*.py) services/fusion/attitude/filter.py
 	$(PY) -m services.fusion.live.warmup
 	touch $@
 

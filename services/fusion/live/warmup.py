@@ -215,7 +215,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"warmup: {e}", file=sys.stderr)
         return 2
     print(f"fusion kernels {'compiled' if line else 'ready'} in {diag['warm_up_s']:.1f} s")
+    print(f"attitude kernel ready in {warm_up_attitude():.1f} s")
     return 0
+
+
+def warm_up_attitude() -> float:
+    """`tiplog fusion attitude`'s compiled kernel into numba's cache too (it is not the live
+    service's, but a cold one compiles for tens of seconds inside a user's first run); seconds taken."""
+    from services.fusion.attitude.filter import estimate
+
+    t0 = time.perf_counter()
+    t = np.arange(200) / 200.0
+    estimate(t, np.zeros((200, 3)), np.tile([0.0, 0.0, G], (200, 1)))
+    return time.perf_counter() - t0
 
 
 if __name__ == "__main__":
