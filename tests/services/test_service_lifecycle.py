@@ -30,6 +30,7 @@ def _start(name: str, endpoint: str, prefix: str, *extra: str, env: dict[str, st
     )
 
 
+@pytest.mark.realtime  # stopped within 2 s of its signal
 @pytest.mark.parametrize("name", SERVICES)
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_service_joins_and_stops_on_signal(name, sig, bus_pair_configs, tmp_path):

@@ -10,6 +10,7 @@ from benchmarks import dashboard_lag
 pytestmark = pytest.mark.slow
 
 
+@pytest.mark.realtime  # 393 of 400 states arrived in its window once, beside three other workers
 def test_benchmark_runs_and_every_state_arrives():
     r = dashboard_lag.run(seconds=2.0, clients=1, rate_hz=200.0)
     assert r["per_client"] == r["expected_per_client"] == 400

@@ -12,6 +12,7 @@ import statistics
 import subprocess
 import sys
 
+import pytest
 from foxglove_schemas_protobuf import RawImage_pb2
 
 from services.recorder.info import inspect
@@ -67,6 +68,7 @@ def read_raw(path):
     return got
 
 
+@pytest.mark.realtime  # the replay within 1 ms of the recorded timing
 def test_replay_then_record_is_identical_in_content_and_timing(served_recorder, bus_pair_configs, tmp_path):
     original = make_session(tmp_path / "orig.mcap")
     srv = served_recorder(camera_archive="raw")  # byte for byte: the camera too, as it came
