@@ -136,6 +136,8 @@ async def serve_client(
 ) -> None:
     """Send to one accepted websocket until it closes, or until it stops taking messages."""
     feed.ws_clients += 1
+    opened_ns = now_ns()
+    ended = "closed"
     try:
         hello = {
             "type": "hello",
@@ -159,11 +161,17 @@ async def serve_client(
                 raise exc
             if exc is not None and not isinstance(exc, WebSocketDisconnect | ConnectionError | RuntimeError):
                 log.warning("websocket client ended with %r", exc)
+            ended = f"closed ({exc!r})" if exc is not None else f"closed by the client ({task.result()})"
     except SlowClient as e:
         feed.ws_dropped += 1
+        ended = "dropped"
         log.warning("websocket client %s dropped: %s (%d dropped so far)", _peer(websocket), e, feed.ws_dropped)
     finally:
         feed.ws_clients -= 1
+        log.info(
+            "websocket client %s %s after %.1f s (%d connected)",
+            _peer(websocket), ended, (now_ns() - opened_ns) / 1e9, feed.ws_clients,
+        )  # fmt: skip
 
 
 class SlowClient(Exception):
@@ -181,16 +189,16 @@ async def send_bounded(websocket: WebSocket, text: str, timeout_s: float) -> Non
 
 
 def _peer(websocket: WebSocket) -> str:
-    c = websocket.client
+    c = getattr(websocket, "client", None)
     return f"{c.host}:{c.port}" if c else "?"
 
 
-async def _drain_incoming(websocket: WebSocket) -> None:
-    """The page sends nothing that matters; reading notices a close at once."""
+async def _drain_incoming(websocket: WebSocket) -> str:
+    """The page sends nothing that matters; reading notices a close at once (its code, said)."""
     while True:
         msg = await websocket.receive()
         if msg["type"] == "websocket.disconnect":
-            return
+            return f"code {msg.get('code')}"
 
 
 async def _send_loop(websocket: WebSocket, feed: BusFeed, wake: Wake, config: DashboardConfig, t0_ns: int) -> None:
