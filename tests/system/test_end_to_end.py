@@ -29,7 +29,9 @@ from tests.system.analysis import (
 from tests.system.harness import UpRun
 from tiplog.mcap_io import read_summary
 
-pytestmark = pytest.mark.slow
+# realtime: every stream's rate within 5 % of nominal over the minute, a wall-clock figure; beside
+# three other workers on two cores fusion's worker stalled 3.8 s once (diagnostics at 1.74 Hz)
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 SERVICES = ["bench", "sensor_gateway", "fusion", "recorder", "dashboard"]
 RECORD_S = 62.0
