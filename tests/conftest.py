@@ -58,14 +58,13 @@ def _bench_pass_cache(tmp_path_factory: pytest.TempPathFactory):
 # each running its share in turn, while the other workers run the rest. The shares are balanced
 # by their run times (the demo's minute in the browser is the longest).
 WHOLE_SYSTEM = {
-    "tests/system/test_end_to_end.py": "system_a",
     "tests/system/test_kill_each.py": "system_a",
     "tests/system/test_rogue.py": "system_a",
     "tests/services/dashboard/test_browser_demo.py": "system_a",
+    "tests/services/dashboard/test_browser_real.py": "system_a",
+    "tests/services/dashboard/test_fuzz.py": "system_a",
     "tests/system/": "system_b",
     "tests/services/dashboard/test_browser.py": "system_b",
-    "tests/services/dashboard/test_browser_real.py": "system_b",
-    "tests/services/dashboard/test_fuzz.py": "system_b",
     "tests/tiplog/test_up.py::test_up_runs_every_service": "system_b",
     "tests/tiplog/test_up_supervisor.py": "system_b",
     "tests/deploy/test_compose.py::test_each_container_command": "system_b",
