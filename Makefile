@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 
-.PHONY: demo test install browser compose proto lint bench clean
+.PHONY: demo test accuracy install browser compose proto lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -51,6 +51,11 @@ TEST_WORKERS ?= 4
 test: $(STAMP) $(KERNELS) browser compose $(MCAP_NODE)/node_modules/.installed
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not realtime"
 	$(PY) -m pytest -q -m realtime
+
+# The long accuracy checks against the bench's truth (benchmarks/accuracy_checks: each generates
+# minutes of bench sessions), apart from `make test`.
+accuracy: $(STAMP) $(KERNELS)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) benchmarks/accuracy_checks
 
 # Regenerate tiplog/v1 from proto/ (tests fail when the committed code differs).
 proto: $(STAMP)
