@@ -205,8 +205,10 @@ def _calibration(tmp: Path, seed: int) -> Path:
     return out
 
 
-def _wait_ready(system: LiveSystem, timeout_s: float = 120.0) -> None:
-    """Until /api/status shows fusion states, the robot and a recorder status."""
+def _wait_ready(system: LiveSystem, timeout_s: float = 300.0) -> None:
+    """Until /api/status shows fusion states, the robot and a recorder status. The bound is on a
+    hang, not a speed: beside the parallel suite the bench took 69 s to start and 45 s to
+    simulate its first pass."""
     deadline = time.monotonic() + timeout_s
     last = "no answer"
     with system.client(VIEWER_TOKEN) as c:
