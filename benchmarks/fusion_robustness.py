@@ -163,7 +163,9 @@ def table(results: dict[str, dict[int, dict[str, Any]]]) -> str:
                 f"{d['diff_mm']:+7.2f} [{d['low_mm']:+6.2f}, {d['high_mm']:+6.2f}]{'':9} | "
                 f"{r['imu_vision']['rmse_mm']:10.2f} {r['imu_tof']['rmse_mm']:8.2f} {r['vision_only']['rmse_mm']:7.2f}"
             )
-    lines.append("tip RMSE [mm], pooled over the scored teleop blocks; 1-sigma: share of errors within the filter's sigma")
+    lines.append(
+        "tip RMSE [mm], pooled over the scored teleop blocks; 1-sigma: share of errors within the filter's sigma"
+    )
     return "\n".join(lines)
 
 
@@ -199,9 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     gen = [("fit", s, str(work / f"fit_{s}.mcap"), [], None) for s in args.seeds]
-    gen += [
-        ("teleop", s, str(work / f"teleop_{s}_{r}.mcap"), sets[r], args.duration) for r in rows for s in args.seeds
-    ]
+    gen += [("teleop", s, str(work / f"teleop_{s}_{r}.mcap"), sets[r], args.duration) for r in rows for s in args.seeds]
     with ProcessPoolExecutor(args.jobs) as pool:
         list(pool.map(_generate, gen))
         cals = {s: _calibrate(s, work) for s in args.seeds}

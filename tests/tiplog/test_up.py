@@ -61,4 +61,3 @@ def test_a_bad_listen_endpoint_is_one_line_before_anything_starts(listen, capsys
         main(["up", "--listen", listen, "--duration", "1"])
     err = capsys.readouterr().err.strip().splitlines()
     assert e.value.code == 2 and len(err) == 1 and "--listen" in err[0] and listen in err[0], err
-
