@@ -8,6 +8,8 @@ snapshots are built on the web server's side.
 from __future__ import annotations
 
 import threading
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,17 +38,22 @@ class _TopicCount:
     last_ns: int = 0
     last_seq: dict[int, int] = field(default_factory=dict)  # publisher id -> last bus seq
     rate_hz: float = 0.0
-    count_at_rate: int = 0
 
 
 class StreamStats:
-    """Per-topic counts, rates (over the last status period) and sequence gaps."""
+    """Per-topic counts, rates and sequence gaps. A rate is the count over the last
+    `rate_window_s` (the counts are taken at each refresh, so a sample costs nothing more): over
+    one status period alone, a 1 Hz topic read 0 and 2 Hz in turn."""
 
-    def __init__(self) -> None:
+    def __init__(self, rate_window_s: float = 5.0, clock: Callable[[], int] = now_ns) -> None:
         self._topics: dict[str, _TopicCount] = {}
         self._lock = threading.Lock()
         self._seen = threading.Condition(self._lock)
-        self._rate_ns = now_ns()
+        self._clock = clock
+        self._window_ns = int(rate_window_s * 1e9)
+        self._rate_ns = clock()
+        # (time, {topic: count}) at each refresh, the oldest at most one refresh past the window
+        self._history: deque[tuple[int, dict[str, int]]] = deque([(self._rate_ns, {})])
 
     def on_sample(self, topic: str, seq: int, publisher_id: int, receive_ns: int) -> None:
         with self._lock:
@@ -73,14 +80,17 @@ class StreamStats:
 
     def snapshot(self, min_period_s: float = 0.25) -> dict[str, dict[str, float]]:
         """{topic: {count, rate_hz, dropped, age_s}}; rates are refreshed at most every
-        `min_period_s` over the interval since the last refresh."""
-        t = now_ns()
+        `min_period_s`, each over the last `rate_window_s` (less while the dashboard is younger)."""
+        t = self._clock()
         with self._lock:
-            dt_s = (t - self._rate_ns) / 1e9
-            if dt_s >= min_period_s:
-                for tc in self._topics.values():
-                    tc.rate_hz = (tc.count - tc.count_at_rate) / dt_s
-                    tc.count_at_rate = tc.count
+            if t - self._rate_ns >= min_period_s * 1e9:
+                h = self._history
+                while len(h) > 1 and t - h[1][0] >= self._window_ns:
+                    h.popleft()
+                t0, counts0 = h[0]
+                for topic, tc in self._topics.items():
+                    tc.rate_hz = (tc.count - counts0.get(topic, 0)) / ((t - t0) / 1e9)
+                h.append((t, {topic: tc.count for topic, tc in self._topics.items()}))
                 self._rate_ns = t
             return {
                 topic: {
