@@ -14,6 +14,11 @@ from pathlib import Path
 from typing import Annotated, Any
 from urllib.parse import parse_qs
 
+# anyio imports its file API lazily, on the first static file served, in the server's thread:
+# imported here, at start, instead (under pytest's import hook that late import once hit a
+# CPython 3.11 bug when two threads parse source at once: "AST constructor recursion depth
+# mismatch", and the page's request got no body)
+from anyio import open_file as _open_file  # noqa: F401
 from fastapi import Depends, FastAPI, HTTPException, Request, WebSocket
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse, Response
 from fastapi.security import APIKeyCookie, HTTPAuthorizationCredentials, HTTPBearer
