@@ -39,6 +39,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from services.fusion.eskf import kernels
+from services.fusion.eskf import layout as _layout
+from services.fusion.eskf import so3 as _so3
+from services.fusion.eskf.jit_cache import drop_stale_for
 from services.fusion.eskf.layout import REST_RATE, rest_constants
 from services.fusion.eskf.so3 import quat_matrix, quat_mul
 
@@ -361,6 +364,11 @@ def _acc_step(a, dt, st, prm, qnow, qtmp, corr, R, H, e) -> None:
         st[_P + k] = P2.ravel()[k]
     for k in range(3):
         st[_BIAS + k] = min(max(st[_BIAS + k] + db[k] * _DEG, -clip), clip)
+
+
+# numba keys this module's cache on this file alone: the rest detector (kernels.py), the
+# quaternion helpers (so3.py) and layout.py's constants are compiled in too (jit_cache.py)
+drop_stale_for(_run, [kernels.__file__, _so3.__file__, _layout.__file__])
 
 
 def input_rows(t_s, gyr_radps, acc_mps2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

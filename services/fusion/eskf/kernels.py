@@ -26,6 +26,9 @@ except ImportError:  # pragma: no cover - exercised where numba is absent
         return lambda f: f
 
 
+from services.fusion.eskf import layout as _layout
+from services.fusion.eskf import so3 as _so3
+from services.fusion.eskf.jit_cache import drop_stale_for
 from services.fusion.eskf.layout import (
     GK_BG_RW,
     GK_BG_RW_PER_RADPS,
@@ -793,3 +796,8 @@ def transition(
         F[6:9, 6:9] = E
         F[6:9, 9:12] = -R_ti * dt
     return F
+
+
+# numba keys this module's cache on this file alone: so3.py's functions and layout.py's
+# constants are compiled in too, so an edit of either drops the cached kernels (jit_cache.py)
+drop_stale_for(gyro_step, [_so3.__file__, _layout.__file__])
