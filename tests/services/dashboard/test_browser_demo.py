@@ -79,7 +79,7 @@ def read_trail(page) -> dict:
                 const r = [];
                 for (let k = 0; k < t.width; k++) { const v = t.get(i, k); r.push(v === v ? v : null); }
                 rows.push(r);
-                if (window.TiplogDraw.breaksBefore(t, i, 1 + c.x_mm)) breaks.push(i);
+                if (window.TiplogDraw.breaksBefore(t, i, c.x_mm)) breaks.push(i);
             }
             return {t0_ns: window.tiplog.hello.t0_ns, columns: window.tiplog.hello.columns.state, rows, breaks};
         }"""
@@ -164,13 +164,16 @@ def test_the_demo_for_a_minute_in_the_browser(watched):
     shown, trail = watched.shown, watched.trail
     rows, breaks = trail["rows"], set(trail["breaks"])
     found, outages = jumps(trail)
-    err = 1 + trail["columns"].index("err_mm")  # |estimate - robot's tip| at the state's time
+    err = trail["columns"].index("err_mm")  # |estimate - robot's tip| at the state's time
     unexplained = []
     for i, d, dt in found:
         t_ns = trail["t0_ns"] + rows[i][0] * 1e6
         if watched.diag.changed_between(t_ns - EXPLAIN_BEFORE_S * 1e9, t_ns + EXPLAIN_AFTER_S * 1e9):
             continue  # a reset or a re-acquisition
-        before, after = rows[i - 1][err], rows[i][err]
+        # the error needs the robot's reference at the state's time, which can come later than
+        # a state published after a stall: the first error within a second after the jump
+        before = rows[i - 1][err]
+        after = next((r[err] for r in rows[i : i + 400] if r[0] - rows[i][0] <= 1000.0 and r[err] is not None), None)
         if before is not None and after is not None and after < before:
             continue  # a correction: a vision frame after a stretch the filter could not see well
         unexplained.append((round(rows[i][0] / 1e3, 2), round(d, 1), dt, before, after))
