@@ -77,14 +77,14 @@ def _group(nodeid: str) -> str | None:
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    loadgroup = getattr(config.option, "loadgroup", False)  # set on xdist's workers
+    # pytest-xdist (3.8) names a group in the test's id by setting item._nodeid, which pytest 9
+    # no longer reads (item._id): without the name every test of a group can go to any worker,
+    # and the whole systems run three and four at once. So the id is named here.
+    name_in_id = getattr(config.option, "loadgroup", False) and items and hasattr(items[0], "_id")
+    if name_in_id:
+        from _pytest.nodeid import coerce_node_id
     for item in items:
         if group := _group(item.nodeid):
             item.add_marker(pytest.mark.xdist_group(group))
-            if loadgroup and hasattr(item, "_id"):
-                # pytest-xdist (3.8) names the group in the test's id by setting item._nodeid,
-                # which pytest 9 no longer reads (item._id): without the name every test of a
-                # group can go to any worker, and the whole systems run three and four at once
-                from _pytest.nodeid import coerce_node_id
-
+            if name_in_id:
                 item._id = coerce_node_id(f"{item.nodeid}@{group}")

@@ -18,8 +18,9 @@ alone and never touches the bus.
 `python -m services.fusion.live.warmup [CALIBRATION.yaml]` fills the cache ahead of time (`make
 install`, and so `make demo` and `make test`, and the container image do so); without a file it
 uses the bench's nominal calibration: compiled code depends on types, not on the geometry. numba
-keys its cache on kernels.py's modification time, so a fresh clone or an edit of that file
-starts cold again: `kernel_cache` tells, so that the service can say why its first start waits.
+keys its cache on kernels.py's modification time, and `eskf/jit_cache.py` drops it when so3.py or
+layout.py change, so a fresh clone or an edit of those files starts cold again: `kernel_cache`
+tells, so that the service can say why its first start waits.
 """
 
 from __future__ import annotations
