@@ -228,6 +228,11 @@ def _wait_ready(system: LiveSystem, timeout_s: float = 300.0) -> None:
     raise TimeoutError(f"system not ready in {timeout_s} s ({last})")
 
 
+# A full-page screenshot of a page that redraws at the state rate waits for a frame to be drawn:
+# under the suite's load that has taken more than Playwright's 30 s default. A hang bound.
+SHOT_TIMEOUT_MS = 120_000
+
+
 def signed_in(browser, system: LiveSystem, token: str, viewport=(1440, 1000)):
     """A page signed in through the login form with `token`, its trail flowing."""
     # bypass_csp: Playwright's own waits evaluate strings, which the page's policy forbids.

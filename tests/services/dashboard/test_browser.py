@@ -14,6 +14,7 @@ import pytest
 from tests.conftest import ROOT
 from tests.services.dashboard.live_system import (
     OPERATOR_TOKEN,
+    SHOT_TIMEOUT_MS,
     VIEWER_TOKEN,
     LiveSystem,
     lock_text,
@@ -86,7 +87,7 @@ def test_numbers_match_the_published_state_and_screenshot(browser, system, artif
         )
         assert health["bench"] == "up" and health["sensor_gateway"] == "up" and health["recorder"] == "up"
         assert health["vision"] == "down"  # not started in this system
-        page.screenshot(path=str(artifacts / "dashboard.png"), full_page=True)
+        page.screenshot(path=str(artifacts / "dashboard.png"), full_page=True, timeout=SHOT_TIMEOUT_MS)
         assert (artifacts / "dashboard.png").stat().st_size > 20_000
         assert page.errors == []
     finally:

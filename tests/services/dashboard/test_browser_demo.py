@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 from tests.conftest import ROOT, free_port
-from tests.services.dashboard.live_system import OPERATOR_TOKEN, signed_in
+from tests.services.dashboard.live_system import OPERATOR_TOKEN, SHOT_TIMEOUT_MS, signed_in
 from tests.system.harness import UpRun
 from tiplog.clock import now_ns
 from tiplog.up import DEFAULT_SERVICES
@@ -116,7 +116,7 @@ def watched(browser, artifacts, tmp_path_factory) -> Watched:
             )
             for shot in (30, 60):
                 page.wait_for_timeout(WATCH_S / 2 * 1000)
-                page.screenshot(path=str(artifacts / f"demo-{shot}s.png"), full_page=True)
+                page.screenshot(path=str(artifacts / f"demo-{shot}s.png"), full_page=True, timeout=SHOT_TIMEOUT_MS)
                 up.check_alive()
             shown = page.evaluate(
                 """() => ({

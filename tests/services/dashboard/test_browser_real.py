@@ -10,7 +10,14 @@ import time
 
 import pytest
 
-from tests.services.dashboard.live_system import OPERATOR_TOKEN, LiveSystem, lock_text, signed_in, start_system
+from tests.services.dashboard.live_system import (
+    OPERATOR_TOKEN,
+    SHOT_TIMEOUT_MS,
+    LiveSystem,
+    lock_text,
+    signed_in,
+    start_system,
+)
 from tiplog.bus import SampleInfo
 from tiplog.v1 import fusion_pb2
 
@@ -104,7 +111,7 @@ def test_numbers_are_a_published_state_of_live_fusion(browser, real_system, arti
             }"""
         )
         assert longest <= 2.0
-        page.screenshot(path=str(artifacts / "dashboard-live-fusion.png"), full_page=True)
+        page.screenshot(path=str(artifacts / "dashboard-live-fusion.png"), full_page=True, timeout=SHOT_TIMEOUT_MS)
         assert page.errors == []
     finally:
         ctx.close()
