@@ -244,7 +244,8 @@ def signed_in(browser, system: LiveSystem, token: str, viewport=(1440, 1000)):
     assert resp.status == 401  # the login form, nothing else
     page.fill("#token", token)
     page.click("#sign-in")
-    page.wait_for_function("window.tiplog && window.tiplog.est && window.tiplog.est.n > 100", timeout=30_000)
+    # a hang bound: beside the parallel suite the demo's page once took over 30 s to draw 100 states
+    page.wait_for_function("window.tiplog && window.tiplog.est && window.tiplog.est.n > 100", timeout=120_000)
     page.errors = errors
     return ctx, page
 
