@@ -80,8 +80,10 @@ class _Service:
 
 
 def _last_state_stamp(session: Path, calib: Calibration) -> int:
-    last = max(r.message.header.stamp_ns for r in mcap_io.read_messages(session, ["device/gyro"]))
-    return last - calib.latency_ns("gyro")
+    """The time of the session's last gyro sample as the filter takes it (the device's clock on
+    the host's, its latency off)."""
+    adapter = FusionRunner(calib).adapter
+    return max(adapter.measurement(r.topic, r.message).t_ns for r in mcap_io.read_messages(session, ["device/gyro"]))
 
 
 def _strip(m):
