@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.fusion.eskf.so3 import skew
+from services.fusion.eskf.kernels.so3 import skew
 from tiplog.calibration import Calibration
 from tiplog.geometry import rot_between
 from tiplog.geometry.vision import closest_axis_point, p0_from_normals, ray_axis_intersection, trocar_gate
