@@ -24,7 +24,7 @@ import numpy as np
 from services.fusion.eskf.init import closest_params, initial_rotation
 from services.fusion.eskf.kernels.propagate import propagate_held
 from services.fusion.eskf.kernels.rest import rest_init, rest_sample
-from services.fusion.eskf.kernels.so3 import cross
+from services.fusion.eskf.kernels.so3 import cross, exp_so3
 from services.fusion.eskf.kernels.steps import gravity_step, gyro_step
 from services.fusion.eskf.kernels.update import finite, health, inject, update
 from services.fusion.eskf.layout import (
@@ -61,21 +61,6 @@ from services.fusion.eskf.params import SENSORS, Params
 from tiplog.calibration import Calibration
 
 DEG = math.pi / 180.0
-
-
-def exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues as I + a K + b K^2). Not
-    `so3.exp_so3`, which writes the entries out and rounds differently in the last bits: a
-    re-acquired state (the only user) is reproduced bit for bit by this form."""
-    x, y, z = float(w[0]), float(w[1]), float(w[2])
-    th2 = x * x + y * y + z * z
-    if th2 < 1e-12:
-        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
-    else:
-        th = math.sqrt(th2)
-        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + a * K + b * (K @ K)
 
 
 class State:
