@@ -18,7 +18,8 @@ $(STAMP): pyproject.toml
 # (services/fusion/live/warmup.py). numba keys its cache on each kernel file's modification time;
 # this target re-runs when a file of the filter's core or the attitude filter changes.
 KERNELS := $(VENV)/.kernels-ready
-$(KERNELS): $(STAMP) $(wildcard services/fusion/eskf/*.py) services/fusion/attitude/filter.py
+$(KERNELS): $(STAMP) $(wildcard services/fusion/eskf/*.py services/fusion/eskf/kernels/*.py services/fusion/eskf/models/*.py) \
+		services/fusion/attitude/filter.py
 	$(PY) -m services.fusion.live.warmup
 	touch $@
 

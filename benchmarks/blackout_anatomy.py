@@ -42,6 +42,7 @@ import numpy as np
 from services.bench.report.data import load, truth_p, truth_R
 from services.fusion.eskf.params import Params
 from services.fusion.offline.inputs import iter_inputs
+from services.fusion.params_file import load_params
 from study.ablation import BLACKOUT_COUNT, blackout_spans, degrade, run_states, sessions_blackouts
 from study.evaluation import EvaluationError, block_windows
 from tiplog.calibration import Calibration, CalibrationError
@@ -210,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     try:
         calib = Calibration.load_yaml(a.calibration) if a.calibration else None
-        params = Params.load_yaml(a.params) if a.params else Params()
+        params = load_params(a.params) if a.params else Params()
         if a.count < 1:
             raise ValueError(f"--count must be at least 1 (got {a.count})")
         counts = [a.count] * len(a.sessions) if a.per_session else sessions_blackouts(a.sessions, a.count)

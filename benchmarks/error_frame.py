@@ -29,6 +29,7 @@ import numpy as np
 from services.bench.report.data import load, truth_p, truth_R
 from services.fusion.eskf.params import Params
 from services.fusion.offline.inputs import iter_inputs
+from services.fusion.params_file import load_params
 from study.ablation import run_states
 from study.evaluation import EvaluationError, block_windows
 from tiplog.calibration import Calibration, CalibrationError
@@ -127,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     try:
         calib = Calibration.load_yaml(a.calibration) if a.calibration else None
-        params = Params.load_yaml(a.params) if a.params else Params()
+        params = load_params(a.params) if a.params else Params()
         swap = [f.strip() for f in a.swap.split(",") if f.strip()]
         check_swaps(swap)
         rows = analyse(a.session, calib, params, a.sensors, swap)

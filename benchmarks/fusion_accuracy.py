@@ -34,6 +34,7 @@ import numpy as np
 from services.fusion.eskf.params import Params, ParamsError, parse_sensors
 from services.fusion.offline.inputs import iter_inputs
 from services.fusion.offline.smoother import smooth
+from services.fusion.params_file import load_params
 from study.ablation import (
     BLACKOUT_COUNT,
     DEGRADED,
@@ -112,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, variants: list[str]) -> int:
-    params = Params.load_yaml(args.params) if args.params else Params()
+    params = load_params(args.params) if args.params else Params()
     given = Calibration.load_yaml(args.calibration) if args.calibration else None
     output = "display" if args.as_live else "settled"
     results = []

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from services.fusion.eskf.params import Params
 from services.fusion.offline.inputs import iter_inputs
+from services.fusion.params_file import load_params
 from services.fusion.timing.runner import OUTPUTS, FusionRunner
 from tiplog.calibration import Calibration
 from tiplog.mcap_io import read_metadata
@@ -62,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", action="store_true", help="print where the time goes")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    params = Params.load_yaml(args.params) if args.params else Params()
+    params = load_params(args.params) if args.params else Params()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     with tempfile.TemporaryDirectory() as d:

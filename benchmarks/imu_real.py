@@ -13,7 +13,7 @@ BNO085. For each trial in `--data` (default: shared/data/broad-tuning beside the
   the accelerometer's largest spike off its 0.5 s mean;
 - rest detection on the still phases and in the movement: the share of time called rest by
   `attitude.AttitudeFilter` and inside the chunks the tracking filter's settings release
-  (both use `kernels.rest_sample`; the tracking filter's constants from `fusion.params.Params`).
+  (both use `kernels.rest.rest_sample`; the tracking filter's constants from `fusion.params.Params`).
 
     python -m benchmarks.imu_real [--data DIR]
 """
@@ -100,7 +100,7 @@ def rest_attitude(tr: dict) -> np.ndarray:
 def rest_tracking(tr: dict) -> np.ndarray:
     """Per-row flag of the tracking filter's detector: rows inside a chunk it released as rest
     (a gyro sample, then an accelerometer sample, per row, as the filter feeds it)."""
-    from services.fusion.eskf import kernels
+    from services.fusion.eskf.kernels.rest import rest_init, rest_sample
     from services.fusion.eskf.params import Params
 
     p = Params()
@@ -116,14 +116,14 @@ def rest_tracking(tr: dict) -> np.ndarray:
             p.rest_agree_accel_mps2**2,
         ]
     )
-    st = kernels.rest_init()
+    st = rest_init()
     t_s = tr["t_s"]
     out = np.zeros(t_s.size, bool)
     for i in range(t_s.size):
         # a released chunk is the one before the chunk that agreed with it
-        if kernels.rest_sample(st, tr["gyr"][i], t_s[i], 0, k):
+        if rest_sample(st, tr["gyr"][i], t_s[i], 0, k):
             out[(t_s >= t_s[i] - 2 * k[4]) & (t_s < t_s[i] - k[4])] = True
-        kernels.rest_sample(st, tr["acc"][i], t_s[i], 1, k)
+        rest_sample(st, tr["acc"][i], t_s[i], 1, k)
     return out
 
 

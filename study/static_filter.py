@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.fusion.eskf.so3 import skew
+from services.fusion.eskf.kernels.so3 import exp_so3, skew
 from tiplog.calibration import Calibration
 from tiplog.geometry import rot_between
 from tiplog.geometry.vision import closest_axis_point, p0_from_normals, ray_axis_intersection, trocar_gate
@@ -38,20 +38,6 @@ E_S = np.array([0.0, 0.0, 1.0])  # shaft axis in tool coordinates (distal)
 G_MPS2 = 9.81
 _DEG = math.pi / 180.0
 _CHI2 = {1: 10.83, 2: 13.82, 3: 16.27}  # 99.9 %
-
-
-_I3 = np.eye(3)
-
-
-def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues, scalar path). Its own small-angle
-    branch (first order below 1e-8 rad) and rounding, which the static protocols' figures
-    reproduce bit for bit."""
-    th = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-    K = skew(phi)
-    if th < 1e-8:
-        return _I3 + K
-    return _I3 + (math.sin(th) / th) * K + ((1.0 - math.cos(th)) / (th * th)) * (K @ K)
 
 
 @dataclass(frozen=True)
@@ -129,7 +115,7 @@ class StaticFilter:
 
     def R_tool_imu(self, s: StaticState) -> np.ndarray:
         """The IMU's mounting as estimated: Exp(m) R_tool_imu."""
-        return so3_exp(s.mount) @ self.c.R_tool_imu
+        return exp_so3(s.mount) @ self.c.R_tool_imu
 
     # ------------------------------------------------------------------ propagation
     def propagate(self, s: StaticState, t_ns: int) -> None:
@@ -140,7 +126,7 @@ class StaticFilter:
         p = self.p
         M = self.R_tool_imu(s)
         w_tool = M @ (s.w_imu - s.bg)
-        Exp = so3_exp(w_tool * dt)
+        Exp = exp_so3(w_tool * dt)
         s.R = s.R @ Exp
         F = np.eye(9)
         F[0:3, 0:3] = Exp.T
@@ -171,7 +157,7 @@ class StaticFilter:
             return False
         K = s.P @ H.T @ Si
         dx = K @ y
-        s.R = s.R @ so3_exp(dx[0:3])
+        s.R = s.R @ exp_so3(dx[0:3])
         s.bg = s.bg + dx[3:6]
         s.L = float(s.L + dx[6])
         s.mount[0:2] += dx[7:9]
@@ -258,7 +244,7 @@ class StaticFilter:
         for k in range(3):
             d = np.zeros(3)
             d[k] = eps
-            H[0, k] = (self.tof_range(s.R @ so3_exp(d), s.L) - h0) / eps
+            H[0, k] = (self.tof_range(s.R @ exp_so3(d), s.L) - h0) / eps
         H[0, 6] = (self.tof_range(s.R, s.L + eps) - h0) / eps
         Rn = np.array([[(self.p.tof_sigma_mm * 1e-3) ** 2]])
         return self._update(s, np.array([range_m - h0]), H, Rn, "tof")

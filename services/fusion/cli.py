@@ -32,7 +32,7 @@ def register(p: argparse.ArgumentParser) -> None:
 
 
 def _params(args: argparse.Namespace) -> int:
-    from services.fusion.eskf.params import defaults_yaml, markdown_table
+    from services.fusion.params_file import defaults_yaml, markdown_table
 
     sys.stdout.write(markdown_table() if args.markdown else defaults_yaml())
     return 0

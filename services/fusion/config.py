@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from pydantic import Field, field_validator, model_validator
 
-from services.fusion.eskf.params import Params, ParamsError, parse_sensors
+from services.fusion.eskf.params import ParamsError, parse_sensors
+from services.fusion.params_file import load_params
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.config import ServiceConfig
 
@@ -51,7 +52,7 @@ class FusionConfig(ServiceConfig):
     def _params_load(cls, v: str | None) -> str | None:
         if v:
             try:
-                Params.load_yaml(v)
+                load_params(v)
             except ParamsError as e:
                 raise ValueError(str(e)) from None
         return v

@@ -11,7 +11,7 @@ estimation with bias estimation and magnetic disturbance rejection", Information
 - an inclination correction `q_acc` (about horizontal axes only) turns it onto +z;
 - the gyroscope bias is a three-state Kalman filter, fed at rest by the mean rate of the rest
   detector's latest chunk and in motion by the rate of the inclination correction. Rest is the
-  tracking filter's detector (`kernels.rest_sample`): VQF's test (every sample near its
+  tracking filter's detector (`kernels.rest`): VQF's test (every sample near its
   low-pass for `rest_min_s`), then chunks of `rest_chunk_s` taken only once the next chunk
   agrees with them, so that a slow sway is not rest; a chunk whose mean rate is beyond the
   bias clip is a slow turn, not rest.
@@ -38,12 +38,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from services.fusion.eskf import kernels
-from services.fusion.eskf import layout as _layout
-from services.fusion.eskf import so3 as _so3
-from services.fusion.eskf.jit_cache import drop_stale_for
+from services.fusion.eskf.jit_cache import drop_stale_for, sources
+from services.fusion.eskf.kernels.rest import rest_init, rest_sample
+from services.fusion.eskf.kernels.so3 import quat_matrix, quat_mul
 from services.fusion.eskf.layout import REST_RATE, rest_constants
-from services.fusion.eskf.so3 import quat_matrix, quat_mul
 
 try:  # a dependency (compiles the time loop, about 100x faster); plain Python where it is absent
     from numba import njit
@@ -121,7 +119,7 @@ class Params:
         return v
 
     def rest_vector(self) -> np.ndarray:
-        """The constants of `kernels.rest_sample`, the rest detector the tracking filter uses."""
+        """The constants of `kernels.rest.rest_sample`, the rest detector the tracking filter uses."""
         return rest_constants(
             self.rest_tau_s, self.rest_th_gyr_dps * _DEG, self.rest_th_acc_mps2, self.rest_min_s, self.rest_chunk_s,
             self.max_gap_s, self.rest_agree_gyr_dps * _DEG, self.rest_agree_acc_mps2,
@@ -178,7 +176,7 @@ def _run(
     """Advance state `st` over rows (t_s (N,), gyr (N, 3) rad/s, acc (N, 3) m/s^2, NaN = missing);
     writes the sensor-to-earth quaternion of every row into q_out (N, 4) and the bias into
     st; when b_out has N rows, each row's bias [rad/s] and its covariance [(deg/s)^2] into
-    b_out (N, 12). `rest` is the state of the rest detector (`kernels.rest_sample`, constants
+    b_out (N, 12). `rest` is the state of the rest detector (`kernels.rest.rest_sample`, constants
     rest_k). Rows whose time is not after the previous row's change nothing."""
     clip, max_gap = prm[PRM_BIAS_CLIP_RADPS], abs(prm[PRM_MAX_GAP_S])
     qtmp = np.empty(4)
@@ -224,7 +222,7 @@ def _run(
             for k in range(3):
                 st[_GPREV + k] = gyr[i, k]
             # a chunk's mean rate released as rest (one beyond the bias clip is a slow turn)
-            if kernels.rest_sample(rest, gyr[i], t, 0, rest_k):
+            if rest_sample(rest, gyr[i], t, 0, rest_k):
                 big = False
                 for k in range(3):
                     big = big or abs(rest[REST_RATE + k]) > clip
@@ -233,7 +231,7 @@ def _run(
                     for k in range(3):
                         st[_GLP + k] = rest[REST_RATE + k]
         if a_ok:
-            kernels.rest_sample(rest, acc[i], t, 1, rest_k)
+            rest_sample(rest, acc[i], t, 1, rest_k)
         if rest[8] != rest[8]:  # a sample off its low-pass: moving
             st[_REST] = 0.0
         _predict(st, delay, qnow, qtmp, e)
@@ -366,9 +364,10 @@ def _acc_step(a, dt, st, prm, qnow, qtmp, corr, R, H, e) -> None:
         st[_BIAS + k] = min(max(st[_BIAS + k] + db[k] * _DEG, -clip), clip)
 
 
-# numba keys this module's cache on this file alone: the rest detector (kernels.py), the
-# quaternion helpers (so3.py) and layout.py's constants are compiled in too (jit_cache.py)
-drop_stale_for(_run, [kernels.__file__, _so3.__file__, _layout.__file__])
+# numba keys this module's cache on this file alone: the rest detector and the quaternion
+# helpers (eskf/kernels/) and layout.py's constants are compiled in too, so it is dropped when
+# any file the filter's kernels compile in changes (`jit_cache.sources`, a superset of its own)
+drop_stale_for(_run, sources())
 
 
 def input_rows(t_s, gyr_radps, acc_mps2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -400,7 +399,7 @@ class AttitudeFilter:
         st[_P : _P + 9] = (np.eye(3) * self.params.bias_sigma_init_dps**2).ravel()
         st[_GPREV : _GPREV + 3] = np.nan
         self._st = st
-        self._rest = kernels.rest_init()
+        self._rest = rest_init()
         self._rest_k = self.params.rest_vector()
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
 

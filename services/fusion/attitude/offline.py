@@ -32,7 +32,7 @@ from services.fusion.attitude.filter import (
     lowpass,
     lowpass_coeffs,
 )
-from services.fusion.eskf.so3 import quat_matrix, quat_mul
+from services.fusion.eskf.kernels.so3 import quat_matrix, quat_mul
 
 
 @jit

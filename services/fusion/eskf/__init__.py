@@ -1,2 +1,3 @@
-"""The tracking filter proper: error-state layout, parameters, numba kernels, measurement
-models, pose maps and the filter. Pure numpy/numba: no protobuf, no files, no bus."""
+"""The tracking filter proper: error-state layout, parameters, numba kernels (`kernels/`),
+measurement models (`models/`), pose maps and the filter. Pure numpy/numba: no protobuf, no
+files, no bus."""

@@ -21,8 +21,12 @@ import math
 
 import numpy as np
 
-from services.fusion.eskf import kernels
-from services.fusion.eskf.init import closest_params, initial_rotation, perp_basis
+from services.fusion.eskf.init import closest_params, initial_rotation
+from services.fusion.eskf.kernels.propagate import propagate_held
+from services.fusion.eskf.kernels.rest import rest_init, rest_sample
+from services.fusion.eskf.kernels.so3 import cross, exp_so3
+from services.fusion.eskf.kernels.steps import gravity_step, gyro_step
+from services.fusion.eskf.kernels.update import finite, health, inject, update
 from services.fusion.eskf.layout import (
     GK_BG_RW,
     GK_BG_RW_PER_RADPS,
@@ -50,27 +54,13 @@ from services.fusion.eskf.layout import (
 )
 from services.fusion.eskf.maps import AccelMap, TofMap
 from services.fusion.eskf.measurement import VisionObservation
+from services.fusion.eskf.models.depth import anchor, shaft_depth
+from services.fusion.eskf.models.tof import tof_jacobian
+from services.fusion.eskf.models.vision import junction_ray, tangent_planes
 from services.fusion.eskf.params import SENSORS, Params
-from services.fusion.eskf.so3 import cross, skew
 from tiplog.calibration import Calibration
 
-E_Z = np.array([0.0, 0.0, 1.0])
 DEG = math.pi / 180.0
-
-
-def exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] -> rotation matrix (Rodrigues as I + a K + b K^2). Not
-    `so3.exp_so3`, which writes the entries out and rounds differently in the last bits: a
-    re-acquired state (the only user) is reproduced bit for bit by this form."""
-    x, y, z = float(w[0]), float(w[1]), float(w[2])
-    th2 = x * x + y * y + z * z
-    if th2 < 1e-12:
-        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
-    else:
-        th = math.sqrt(th2)
-        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + a * K + b * (K @ K)
 
 
 class State:
@@ -105,7 +95,7 @@ class State:
         return s
 
     def finite(self) -> bool:
-        return kernels.finite(self.p, self.R, self.P)
+        return finite(self.p, self.R, self.P)
 
 
 def _bump(d: dict, key: str, by: float = 1.0) -> None:
@@ -261,7 +251,7 @@ class TrackingFilter:
         s.f_imu = np.zeros(3) if f_imu is None else np.asarray(f_imu, float).copy()
         s.w_prev = []
         s.alpha_tool = np.zeros(3)
-        s.rest = kernels.rest_init()
+        s.rest = rest_init()
         s.gyro_n = 0
         s.accel_n = 0
         s.last_tip_ns = -(1 << 62)
@@ -274,7 +264,7 @@ class TrackingFilter:
         s.tip_held = None  # (t_ns, residual_cam_m (3,), replaced a dropped one) of a tip awaiting confirmation
         s.f_corr = np.zeros(3)  # the accelerometer map's correction taken off each sample (IMU frame)
         s.f_corr_ns = -(1 << 62)
-        s.acc = np.zeros(16)  # the accelerometer map's open bin (`kernels.gravity_step`)
+        s.acc = np.zeros(16)  # the accelerometer map's open bin (`kernels.steps.gravity_step`)
         s.acc_bin = -(1 << 62)  # which bin (time // bin length) it is
         s.acc_t = 0  # its last sample's time
         s.noise = noise_init()
@@ -316,13 +306,13 @@ class TrackingFilter:
         if dt <= 0.0:
             return
         s.t_ns = int(t_ns)
-        kernels.propagate_held(
+        propagate_held(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
             self._Q if self.brho_free(s) else self._Q_held, self._gyro_k, dt, self.imu,
         )  # fmt: skip
 
     def _advance(self, s: State, t_ns: int) -> float:
-        """The state's clock to t_ns for a compiled step (`kernels.gyro_step`, `gravity_step`):
+        """The state's clock to t_ns for a compiled step (`kernels.steps`: `gyro_step`, `gravity_step`):
         returns the dt [s] that step is to propagate over, or 0 after propagating here when
         each step's propagation must come apart (`propagate_apart`)."""
         if self.propagate_apart:
@@ -337,7 +327,7 @@ class TrackingFilter:
         """Propagate to t_ns with the held samples, take the new rate (and the angular
         acceleration over the last `alpha_window` samples), and every `rcm_every`-th sample the
         RCM update (the shaft line through the registered RCM, (R^T (r - p))_xy = 0, 2-D): one
-        compiled call (`kernels.gyro_step`), the same maths as `propagate` and `_update`.
+        compiled call (`kernels.steps.gyro_step`), the same maths as `propagate` and `_update`.
         Returns why the state must be reset (`diverged`), or None."""
         dt = self._advance(s, t_ns)
         free = self.brho_free(s)
@@ -353,7 +343,7 @@ class TrackingFilter:
                 dt_alpha = span * 1e-9 if span >= self._alpha_min_span_ns else 0.0
         s.gyro_n += 1
         do_rcm = s.gyro_n % self.prm.rcm_every == 0
-        status, nis, dbrho, health, rest = kernels.gyro_step(
+        status, nis, dbrho, hl, rest = gyro_step(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
             self._Q if free else self._Q_held, self._gyro_k, dt, self.imu, w, w_old, dt_alpha, self.rcm, do_rcm,
             not free, s.rest, t_ns * 1e-9, self._rest_k_on,
@@ -369,7 +359,7 @@ class TrackingFilter:
             self.update_rest(s)
         if not self.vision:
             self._clamp_depth(s)
-        return self._why(health, s)
+        return self._why(hl, s)
 
     def on_accel(self, s: State, t_ns: int, f_imu: np.ndarray) -> None:
         """Hold the sample for propagation; every `gravity_every`-th sample, the gravity update
@@ -387,7 +377,7 @@ class TrackingFilter:
         every = self.prm.gravity_every
         if not every or s.accel_n % every:
             if self.rest_on:
-                kernels.rest_sample(s.rest, s.f_imu, t_ns * 1e-9, 1, self._rest_k)
+                rest_sample(s.rest, s.f_imu, t_ns * 1e-9, 1, self._rest_k)
             return
         self.update_gravity(s, self._advance(s, t_ns), t_ns * 1e-9)
 
@@ -400,15 +390,15 @@ class TrackingFilter:
         return self.vision and (s.t_ns - s.last_tip_ns) <= self._brho_window_ns
 
     def _gain(self, s: State) -> tuple[int, int]:
-        """The error states an update gives gain by default (`kernels.update`'s lo, hi): all but
+        """The error states an update gives gain by default (`kernels.update.update`'s lo, hi): all but
         a held b_rho."""
-        return 0, N if self.brho_free(s) else N - 1  # `kernels.gain_hi`, without a compiled call
+        return 0, N if self.brho_free(s) else N - 1  # `kernels.update.gain_hi`, without a compiled call
 
     def _update(
         self, s: State, H: np.ndarray, y: np.ndarray, r_var: np.ndarray, chi2: float, name: str,
         gain: tuple[int, int] | None = None, scaled: bool = False, adapt: bool = True,
     ) -> bool:  # fmt: skip
-        """`kernels.update`, the error states given gain (lo, hi) by default `_gain(s)`. An
+        """`kernels.update.update`, the error states given gain (lo, hi) by default `_gain(s)`. An
         `ADAPTIVE` stream's variance is scaled by its factor, which its innovation then updates;
         while the stream is set aside its innovation is only watched. `scaled`: r_var is
         already scaled and this innovation already counted (a held tip applied); `adapt`
@@ -419,7 +409,7 @@ class TrackingFilter:
         if i is not None:
             r_var = r_var * s.noise[i, 0]
             aside = s.noise[i, 2] != 0.0
-        status, nis, dx = kernels.update(s.P, H, y, r_var, -1.0 if aside else chi2, lo, hi)
+        status, nis, dx = update(s.P, H, y, r_var, -1.0 if aside else chi2, lo, hi)
         if i is not None and adapt:
             self._adapt(s, name, nis, len(y), chi2)
         if status:
@@ -459,7 +449,7 @@ class TrackingFilter:
     def _apply(self, s: State, name: str, nis: float, dx: np.ndarray) -> None:
         _bump(s.counts, f"updates:{name}")
         _bump(s.nis, name, nis)
-        s.brho += kernels.inject(s.p, s.v, s.R, s.bg, s.ba, dx, s.P)
+        s.brho += inject(s.p, s.v, s.R, s.bg, s.ba, dx, s.P)
 
     def _update_tip(self, s: State, H: np.ndarray, y: np.ndarray, resid_cam: np.ndarray) -> bool:
         """The junction ray's update, a surprising one only once confirmed. A tip whose NIS
@@ -479,13 +469,13 @@ class TrackingFilter:
         held, s.tip_held = s.tip_held, None
         gate = prm.gate_chi2_2
         if row[2] != 0.0:  # set aside: watched only
-            status, nis, _ = kernels.update(s.P, H, y, r_var, -1.0, *self._gain(s))
+            status, nis, _ = update(s.P, H, y, r_var, -1.0, *self._gain(s))
             self._adapt(s, "vision_tip", nis, 2, gate)
             _bump(s.counts, "rejected:vision_tip:set_aside")
             return False
         # switched off (0) or at the gate, nothing passes the gate and fails the confirmation
         confirm = prm.tip_confirm_chi2 if 0.0 < prm.tip_confirm_chi2 < gate else gate
-        status, nis, dx = kernels.update(s.P, H, y, r_var, confirm, *self._gain(s))
+        status, nis, dx = update(s.P, H, y, r_var, confirm, *self._gain(s))
         self._adapt(s, "vision_tip", nis, 2, gate)
         if status == 0:
             if held is not None:
@@ -511,10 +501,10 @@ class TrackingFilter:
 
     def update_gravity(self, s: State, dt: float = 0.0, rest_t_s: float | None = None) -> bool:
         """Specific force at the IMU against gravity plus the lever arm's centripetal and
-        tangential terms (the shaft's point at the port taken at rest: `kernels.port_lever`),
+        tangential terms (the shaft's point at the port taken at rest: `models.rcm.port_lever`),
         down-weighted as |f| leaves g, after
         propagating over dt [s] (the state's time already set): one compiled call
-        (`kernels.gravity_step`). With rest_t_s [s], the sample also goes through the rest
+        (`kernels.steps.gravity_step`). With rest_t_s [s], the sample also goes through the rest
         detector first (`on_accel`: one call for both)."""
         free = self.brho_free(s)
         amap = self.accel_map
@@ -528,7 +518,7 @@ class TrackingFilter:
                 s.acc_bin = b
             if free and s.t_ns - s.t_init_ns >= self._map_settle_ns:  # not from a state still converging
                 max_excess = self.prm.accel_map_max_excess
-        status, nis, dbrho, recorded = kernels.gravity_step(
+        status, nis, dbrho, recorded = gravity_step(
             s.p, s.v, s.R, s.P, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, self.R_ti, self.r_imu_tip_tool,
             self._Q if free else self._Q_held, self._gyro_k, dt, self._grav_k, not free, self.rcm,
             s.acc, s.f_corr, max_excess, s.rest, -1.0 if rest_t_s is None else rest_t_s,
@@ -545,7 +535,7 @@ class TrackingFilter:
         return True
 
     def update_rest(self, s: State) -> bool:
-        """The tool at rest: the mean gyro rate over a chunk of rest (`kernels.rest_sample`)
+        """The tool at rest: the mean gyro rate over a chunk of rest (`kernels.rest.rest_sample`)
         is the bias, w = b_g. The gate turns away a slow steady turn taken for rest once the
         bias is known better than that turn's rate. While b_rho is held (no vision tip within
         the offset window) it moves the gyro bias alone (`rest_bias_only`): a Schmidt update,
@@ -571,7 +561,7 @@ class TrackingFilter:
         if not self.tof:
             return False
         c = self.c
-        H, rho, den = kernels.tof_jacobian(
+        H, rho, den = tof_jacobian(
             s.R, s.p, s.brho, c.tof_plane_normal_base, c.tof_plane_h_m, c.tof_origin_tool_m, c.tof_beam_tool
         )
         if den < 0.05:
@@ -625,7 +615,7 @@ class TrackingFilter:
         prm = self.prm
         if prm.depth_anchor_sigma_mm <= 0.0 or not 0.0 < dt_s < 1.0:
             return
-        L = kernels.shaft_depth(s.R, s.p, self.rcm)
+        L = shaft_depth(s.R, s.p, self.rcm)
         if self.vision and s.t_ns - s.last_vision_ns <= self._brho_window_ns:
             a = min(1.0, dt_s / prm.depth_ref_tau_s)
             dev = L - s.depth_ref
@@ -633,11 +623,10 @@ class TrackingFilter:
             if prm.depth_anchor_learn_spread:
                 s.depth_var += a * (dev * dev - s.depth_var)
             return
-        H = np.zeros((1, N))
-        H[0, IP] = s.R[:, 2]
+        H, y = anchor(s.R, L, s.depth_ref)
         var = max(s.depth_var, (prm.depth_anchor_sigma_min_mm * 1e-3) ** 2)
         r_var = np.array([var * prm.depth_anchor_tau_s / dt_s])
-        self._update(s, H, np.array([s.depth_ref - L]), r_var, math.inf, "depth_anchor")
+        self._update(s, H, y, r_var, math.inf, "depth_anchor")
 
     def _tip_disagrees_with_tof(self, s: State, u_c: np.ndarray, d: np.ndarray) -> bool:
         """Whether the depth the junction ray implies on the present shaft line is further than
@@ -662,7 +651,7 @@ class TrackingFilter:
 
     def _clamp_depth(self, s: State) -> None:
         """The tip back to the physical insertion range along the shaft (depth_min/max_m)."""
-        L = kernels.shaft_depth(s.R, s.p, self.rcm)
+        L = shaft_depth(s.R, s.p, self.rcm)
         Lc = min(max(L, self.prm.depth_min_m), self.prm.depth_max_m)
         if Lc != L:
             s.p = s.p + (Lc - L) * s.R[:, 2]
@@ -682,13 +671,8 @@ class TrackingFilter:
         gate = np.abs(n @ self.rcm_cam - rho).max()
         passed = gate <= prm.trocar_gate_mm * 1e-3
         applied = False
-        u = s.R[:, 2]
         if passed:
-            nA = n @ A
-            H = np.zeros((4, N))
-            H[:2, ITH] = -(nA @ s.R) @ skew(E_Z)
-            H[2:, IP] = nA
-            y = np.concatenate([-(nA @ u), rho - nA @ (s.p - cam)])
+            H, y = tangent_planes(s.R, s.p, n, A, cam, rho)
             r = np.array([self.plane_var, self.plane_var, self.offset_var, self.offset_var])
             if self._update(s, H, y, r, prm.gate_chi2_4, "vision_axis"):
                 applied = True
@@ -705,14 +689,8 @@ class TrackingFilter:
             elif self._tip_disagrees_with_tof(s, u_c, d):
                 _bump(s.counts, "rejected:vision_tip:tof_disagrees")
             else:
-                E = perp_basis(d)
-                EA = E @ A
-                J = s.p - self.jp * u
-                H = np.zeros((2, N))
-                H[:, IP] = EA
-                H[:, ITH] = (EA @ s.R) @ skew(E_Z) * self.jp
-                y = -(EA @ (J - cam))
-                if self._update_tip(s, H, y, E.T @ y):
+                H, y, resid_cam = junction_ray(s.R, s.p, d, A, cam, self.jp)
+                if self._update_tip(s, H, y, resid_cam):
                     s.last_tip_ns = s.t_ns
                     applied = True
         s.vis_reject_run = 0 if applied else s.vis_reject_run + 1
@@ -764,9 +742,7 @@ class TrackingFilter:
 
     def diverged(self, s: State) -> str | None:
         """Why the state must be reset, or None."""
-        return self._why(
-            kernels.health(s.p, s.v, s.R, s.P, self._gyro_k[GK_MAX_POS_VAR], self._gyro_k[GK_MAX_SPEED2]), s
-        )
+        return self._why(health(s.p, s.v, s.R, s.P, self._gyro_k[GK_MAX_POS_VAR], self._gyro_k[GK_MAX_SPEED2]), s)
 
     def _why(self, health: int, s: State) -> str | None:
         if health == 1:

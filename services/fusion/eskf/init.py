@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.fusion.eskf.so3 import cross
+from services.fusion.eskf.kernels.so3 import cross
 
 E_Z = np.array([0.0, 0.0, 1.0])
 

@@ -65,7 +65,7 @@ def rest_constants(
     tau_s: float, th_gyro_radps: float, th_accel_mps2: float, min_s: float, chunk_s: float, gap_s: float,
     agree_gyro_radps: float, agree_accel_mps2: float,
 ) -> np.ndarray:  # fmt: skip
-    """The rest detector's constants (`kernels.rest_sample`), thresholds given as distances."""
+    """The rest detector's constants (`kernels.rest.rest_sample`), thresholds given as distances."""
     k = np.empty(RK_SIZE)
     k[RK_TAU_S] = tau_s
     k[RK_TH_GYRO2] = th_gyro_radps**2

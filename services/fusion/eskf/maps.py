@@ -14,7 +14,7 @@ in time so that a rewind only has to cut its tail.
 The accelerometer's reading is turned by a pose-locked error too (0.21 deg across poses, the
 same on every pass): `AccelMap` keeps, for the poses visited with vision, the gravity update's
 residual (3 components), and the filter takes the kernel-weighted mean at the present pose off
-every sample. Its bins are summed in the filter's state (`kernels.gravity_step`), which a
+every sample. Its bins are summed in the filter's state (`kernels.steps.gravity_step`), which a
 rewind restores, so the map takes them whole.
 """
 
@@ -25,7 +25,7 @@ from collections import deque
 
 import numpy as np
 
-from services.fusion.eskf import kernels
+from services.fusion.eskf.kernels.pose_map import kernel_mean
 
 
 class _PoseEntries:
@@ -96,7 +96,7 @@ class _PoseEntries:
     def _kernel_sum(self, t_ns: int, R: np.ndarray, p: np.ndarray) -> float:
         """The kernel weight of the entries within the window at (R, p); their weighted sum of
         errors is left in self._sum."""
-        return kernels.kernel_mean(
+        return kernel_mean(
             self._K, self._k2, self._e, self._t, self._n, int(t_ns - self.window_ns), R, p, self._wk, self._sum
         )
 
@@ -228,7 +228,7 @@ class TofMap(_PoseEntries):
             return brho
         wm = self.mean_weight
         mean = (float(self._cum[n - 1] - self._cum[lo] + self._e[lo, 0]) + wm * brho) / (n - lo + wm)
-        sw = kernels.kernel_mean(self._K, self._k2_far, self._e, self._t, n, t_lo, R, p, self._wk_far, self._sum_far)
+        sw = kernel_mean(self._K, self._k2_far, self._e, self._t, n, t_lo, R, p, self._wk_far, self._sum_far)
         wf = self.far_weight
         near = (float(self._sum_far[0]) + wf * mean) / (sw + wf) if sw + wf > 0.0 else mean
         if self.gp_bins > 0 and n - lo >= self.gp_bins:
@@ -278,7 +278,7 @@ class AccelMap(_PoseEntries):
         super().__init__(sigma_deg, sigma_mm, bin_ms, window_s, prior_weight, 3)
 
     def add_bin(self, t_ns: int, acc: np.ndarray) -> None:
-        """A bin summed as `kernels.gravity_step` sums it (acc (16,): the poses' R and p, the
+        """A bin summed as `kernels.steps.gravity_step` sums it (acc (16,): the poses' R and p, the
         residuals, the count), stamped t_ns (its last sample's time)."""
         n = acc[15]
         self._added += 1

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.fusion.eskf import kernels
 from services.fusion.eskf.filter import State
+from services.fusion.eskf.kernels.sample import sample_row
 
 
 @dataclass(slots=True)
@@ -32,12 +32,12 @@ class StateSample:
 
 
 def make_sample(s: State, rcm_base_m: np.ndarray, neutral_u: np.ndarray, lock_ns: int) -> StateSample:
-    return _sample(s, kernels.sample_row(s.R, s.p, s.v, s.P, s.bg, s.ba, rcm_base_m, neutral_u, False), lock_ns)
+    return _sample(s, sample_row(s.R, s.p, s.v, s.P, s.bg, s.ba, rcm_base_m, neutral_u, False), lock_ns)
 
 
 def finite_sample(s: State, rcm_base_m: np.ndarray, neutral_u: np.ndarray, lock_ns: int) -> StateSample | None:
     """`make_sample`, or None for a state that is not finite (`State.finite`): one compiled call."""
-    row = kernels.sample_row(s.R, s.p, s.v, s.P, s.bg, s.ba, rcm_base_m, neutral_u, True)
+    row = sample_row(s.R, s.p, s.v, s.P, s.bg, s.ba, rcm_base_m, neutral_u, True)
     return _sample(s, row, lock_ns) if len(row) else None
 
 

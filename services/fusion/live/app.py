@@ -18,6 +18,7 @@ from services.fusion.config import FusionConfig
 from services.fusion.eskf.params import Params, mode_name, parse_sensors
 from services.fusion.live.service import LiveFusion, warm_kernels
 from services.fusion.live.warmup import kernel_cache
+from services.fusion.params_file import load_params
 from tiplog.calibration import Calibration
 from tiplog.service import ServiceContext, run_service
 
@@ -26,7 +27,7 @@ NAME = "fusion"
 
 def _inputs(cfg: FusionConfig) -> tuple[Calibration, Params, frozenset[str]]:
     calibration = Calibration.load_yaml(cfg.calibration_file)
-    params = Params.load_yaml(cfg.params_file) if cfg.params_file else Params()
+    params = load_params(cfg.params_file) if cfg.params_file else Params()
     return calibration, params, parse_sensors(cfg.sensors)
 
 

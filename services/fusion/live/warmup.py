@@ -18,9 +18,10 @@ alone and never touches the bus.
 `python -m services.fusion.live.warmup [CALIBRATION.yaml]` fills the cache ahead of time (`make
 install`, and so `make demo` and `make test`, and the container image do so); without a file it
 uses the bench's nominal calibration: compiled code depends on types, not on the geometry. numba
-keys its cache on kernels.py's modification time, and `eskf/jit_cache.py` drops it when so3.py or
-layout.py change, so a fresh clone or an edit of those files starts cold again: `kernel_cache`
-tells, so that the service can say why its first start waits.
+keys each kernel module's cache on that module's own file, and `eskf/jit_cache.py` drops every
+module's cache when any file of eskf/kernels/, eskf/models/ or eskf/layout.py changes, so a fresh
+clone or an edit of one of those files starts cold again: `kernel_cache` tells, so that the
+service can say why its first start waits.
 """
 
 from __future__ import annotations
@@ -152,14 +153,15 @@ def synthetic_inputs(
 
 
 def kernel_cache() -> tuple[bool | None, str]:
-    """(whether numba's cache holds compiled code of this kernels.py, the cache folder); (None,
-    "") when numba is absent or its cache cannot be read. Judged by `gyro_step`, which every
-    live sample goes through: the warm-up compiles it with the rest, and an edit of kernels.py
-    makes every kernel's entry stale at once."""
+    """(whether numba's cache holds compiled code of this version of the filter's kernels, the
+    cache folder); (None, "") when numba is absent or its cache cannot be read. Judged by
+    `gyro_step`, which every live sample goes through: the warm-up compiles it with the rest,
+    and an edit of any file the kernels compile in drops every module's cache at once
+    (`eskf/jit_cache.py`)."""
     try:
-        from services.fusion.eskf import kernels
+        from services.fusion.eskf.kernels.steps import gyro_step
 
-        cache = kernels.gyro_step._cache
+        cache = gyro_step._cache
         # numba's index is empty when missing or written for another version of the source
         return bool(cache._cache_file._load_index()), str(cache._cache_path)
     except Exception:  # numba absent, or its private cache layout changed: nothing to say

@@ -27,6 +27,7 @@ from services.fusion.offline.inputs import (
     recording_metadata,
     source_fingerprint,
 )
+from services.fusion.params_file import load_params
 from services.fusion.timing.runner import FusionRunner
 from tiplog.calibration import Calibration, CalibrationError
 from tiplog.mcap_io import McapWriter, read_summary
@@ -59,7 +60,7 @@ def load_inputs(args: argparse.Namespace) -> tuple[Path, Calibration, Params, fr
     src = input_mcap(args.recording)
     try:
         sensors = parse_sensors(args.sensors)
-        params = Params.load_yaml(input_file(args.params, "parameter file")) if args.params else Params()
+        params = load_params(input_file(args.params, "parameter file")) if args.params else Params()
     except ParamsError as e:
         raise UserError(str(e)) from None
     meta = recording_metadata(src)

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.fusion.eskf import kernels
 from services.fusion.eskf.filter import State
+from services.fusion.eskf.kernels.propagate import transition
+from services.fusion.eskf.kernels.so3 import exp_so3
 from services.fusion.eskf.params import SENSORS, Params
 from services.fusion.eskf.sample import StateSample, make_sample
-from services.fusion.eskf.so3 import exp_so3
 from services.fusion.timing.runner import FusionRunner
 from tiplog.calibration import Calibration
 from tiplog.geometry import so3_log
@@ -56,9 +56,7 @@ def smooth(calib: Calibration, params: Params, msgs, sensors: frozenset[str] = S
         dt = (t_ns - s.t_ns) * 1e-9
         if dt <= 0.0:
             return
-        F = kernels.transition(
-            s.R, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, filt.R_ti, filt.r_imu_tip_tool, dt, filt.imu
-        )
+        F = transition(s.R, s.bg, s.ba, s.w_imu, s.f_imu, s.alpha_tool, filt.R_ti, filt.r_imu_tip_tool, dt, filt.imu)
         P_post = s.P.copy()
         rec.post.append((*_nominal(s), P_post))
         original(s, t_ns)

@@ -215,9 +215,9 @@ def test_smooth_beats_online_and_keeps_rows(truth):
 
 def test_rest_is_the_tracking_filters_detector_and_measures_the_bias():
     """Still, with a bias: rest comes once the detector has released a chunk (the tracking
-    filter's `kernels.rest_sample`, fed the same samples), and the bias converges to the truth;
+    filter's `kernels.rest.rest_sample`, fed the same samples), and the bias converges to the truth;
     a slow turn beyond the bias clip is not rest."""
-    from services.fusion.eskf import kernels
+    from services.fusion.eskf.kernels.rest import rest_init, rest_sample
 
     rng = np.random.default_rng(12)
     rate = 200.0
@@ -227,12 +227,12 @@ def test_rest_is_the_tracking_filters_detector_and_measures_the_bias():
     acc = np.array([0.0, 3.0, 9.34]) + rng.normal(0, 0.05, (t.size, 3))
     f = AttitudeFilter()
     flags = np.array([(f.update(t[i], gyr[i], acc[i]), f.rest)[1] for i in range(t.size)])
-    rest, k = kernels.rest_init(), Params().rest_vector()
+    rest, k = rest_init(), Params().rest_vector()
     first_release = None
     for i in range(t.size):
-        if kernels.rest_sample(rest, gyr[i], t[i], 0, k) and first_release is None:
+        if rest_sample(rest, gyr[i], t[i], 0, k) and first_release is None:
             first_release = i
-        kernels.rest_sample(rest, acc[i], t[i], 1, k)
+        rest_sample(rest, acc[i], t[i], 1, k)
     assert first_release is not None and not flags[:first_release].any() and flags[first_release:].all()
     assert np.degrees(np.abs(f.bias_radps - bias)).max() < 0.02
     turn = AttitudeFilter()

@@ -1,6 +1,7 @@
-"""The tracking filter's maths on synthetic data (no bench): the compiled kernels against plain
-numpy, gyro bias and tip estimated at rest from gravity, RCM and vision, the innovation gate,
-and the ToF offset held while vision is absent."""
+"""The tracking filter's maths on synthetic data (no bench): propagation across a stalled host,
+the compiled steps against the same maths apart, gyro bias and tip estimated at rest from
+gravity, RCM and vision, the innovation gate, and the ToF offset held while vision is absent.
+The kernels and measurement models alone: tests/services/fusion/eskf/kernels/, models/."""
 
 from __future__ import annotations
 
@@ -10,12 +11,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from services.fusion.eskf import kernels
-from services.fusion.eskf.filter import E_Z, N, TrackingFilter
+from services.fusion.eskf.filter import N, TrackingFilter
+from services.fusion.eskf.init import E_Z
+from services.fusion.eskf.kernels.propagate import propagate, propagate_held
+from services.fusion.eskf.kernels.rest import rest_init, rest_sample
 from services.fusion.eskf.layout import REST_RATE
 from services.fusion.eskf.measurement import VisionObservation
+from services.fusion.eskf.models.gravity import gravity_jacobian
+from services.fusion.eskf.models.rcm import port_lever, rcm_jacobian
+from services.fusion.eskf.models.tof import tof_jacobian
 from services.fusion.eskf.params import Params
-from services.fusion.eskf.so3 import skew
 from tiplog.calibration import Calibration
 from tiplog.geometry import rot_between, so3_exp
 from tiplog.geometry import vision as vg
@@ -60,72 +65,6 @@ def _obs(c: Calibration, R: np.ndarray, p: np.ndarray, tilt_rad: float = 0.0) ->
     return VisionObservation(n_l, n_r, True, J_c / np.linalg.norm(J_c))
 
 
-def test_kernels_match_numpy():
-    rng = np.random.default_rng(0)
-    X = rng.normal(size=(N, N))
-    P0 = X @ X.T * 1e-4 + np.eye(N) * 1e-6
-    R = so3_exp(rng.normal(size=3))
-    R_ti = so3_exp(rng.normal(size=3))
-    lever, w, f, bg, ba, alpha = (rng.normal(size=3) for _ in range(6))
-    q = np.abs(rng.normal(size=N)) * 1e-3
-    dt = 0.005
-    P = P0.copy()
-    Rk = R.copy()
-    p, v = np.zeros(3), np.zeros(3)
-    kernels.propagate(p, v, Rk, P, bg, ba, w, f, alpha, R_ti, lever, q, 0.01, 0.02, dt, True)
-    w_tool, f_tool = R_ti @ (w - bg), R_ti @ (f - ba)
-    a_tool = f_tool + np.cross(alpha, lever) + np.cross(w_tool, np.cross(w_tool, lever))
-    F = np.eye(N)
-    F[0:3, 3:6] = np.eye(3) * dt
-    F[3:6, 6:9] = -R @ skew(a_tool) * dt
-    F[3:6, 12:15] = -R @ R_ti * dt
-    F[0:3, 6:9] = -R @ skew(a_tool) * dt * dt / 2
-    F[0:3, 12:15] = -R @ R_ti * dt * dt / 2
-    F[6:9, 6:9] = so3_exp(-w_tool * dt)
-    F[6:9, 9:12] = -R_ti * dt
-    # the smoother's F is the one the filter applies
-    np.testing.assert_allclose(kernels.transition(R, bg, ba, w, f, alpha, R_ti, lever, dt, True), F, atol=1e-15)
-    Q = q.copy()
-    Q[9:12] = (0.01 + 0.02 * np.linalg.norm(w_tool)) ** 2
-    np.testing.assert_allclose(P, F @ P0 @ F.T + np.diag(Q * dt), rtol=1e-10, atol=1e-15)
-    np.testing.assert_allclose(Rk, R @ so3_exp(w_tool * dt), atol=1e-12)
-    H = rng.normal(size=(2, N))
-    y = rng.normal(size=2) * 1e-3
-    r = np.array([1e-6, 2e-6])
-    P = P0.copy()
-    status, nis, dx = kernels.update(P, H, y, r, 1e9, 0, N)
-    S = H @ P0 @ H.T + np.diag(r)
-    K = P0 @ H.T @ np.linalg.inv(S)
-    assert status == 0
-    np.testing.assert_allclose(dx, K @ y, rtol=1e-9)
-    np.testing.assert_allclose(P, P0 - K @ S @ K.T, rtol=1e-8, atol=1e-14)
-    assert nis == pytest.approx(y @ np.linalg.solve(S, y))
-
-
-def test_the_propagation_jacobian_is_the_derivative_of_the_step():
-    """Each attitude and accelerometer-bias column of F against finite differences of the
-    nominal step: the lever arm's centripetal and tangential terms turn with the tool, as the
-    specific force does, and the position takes half a step of the changed acceleration."""
-    rng = np.random.default_rng(3)
-    R, R_ti = so3_exp(rng.normal(size=3)), so3_exp(rng.normal(size=3))
-    lever = np.array([-0.018, 0.0, 0.304])
-    w, f, alpha = rng.normal(size=3) * 2.0, np.array([0.3, -9.5, 1.2]), rng.normal(size=3) * 20.0
-    bg, ba, dt, eps = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01, 0.005, 1e-7
-
-    def step(Rx, bax):
-        p, v, P = np.zeros(3), np.array([0.01, -0.02, 0.03]), np.eye(N)
-        kernels.propagate(p, v, Rx.copy(), P, bg, bax, w, f, alpha, R_ti, lever, np.zeros(N), 0.0, 0.0, dt, True)
-        return np.concatenate([p, v])
-
-    F = kernels.transition(R, bg, ba, w, f, alpha, R_ti, lever, dt, True)
-    base = step(R, ba)
-    for j in range(3):
-        e = np.zeros(3)
-        e[j] = eps
-        np.testing.assert_allclose((step(R @ so3_exp(e), ba) - base) / eps, F[0:6, 6 + j], rtol=1e-5, atol=1e-9)
-        np.testing.assert_allclose((step(R, ba + e) - base) / eps, F[0:6, 12 + j], rtol=1e-5, atol=1e-9)
-
-
 def test_a_stall_past_the_imu_gap_holds_the_velocity_and_gives_it_its_no_imu_uncertainty():
     """`propagate_held` (every propagation of the filter): within the IMU gap, or without an IMU,
     it is `propagate` exactly. Past the gap the held samples drive only the gap itself; the rest
@@ -144,7 +83,7 @@ def test_a_stall_past_the_imu_gap_holds_the_velocity_and_gives_it_its_no_imu_unc
         P, R = P0.copy(), R0.copy()
         p, v = np.zeros(3), np.zeros(3)
         bg, ba, w, fi, alpha = (a.copy() for a in args)
-        if kernel is kernels.propagate:
+        if kernel is propagate:
             kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k[0], k[1], dt, imu, k[8])
             if then is not None:
                 kernel(p, v, R, P, bg, ba, w, fi, alpha, f.R_ti, f.r_imu_tip_tool, f._Q, k[0], k[1], then, False, k[8])
@@ -155,20 +94,20 @@ def test_a_stall_past_the_imu_gap_holds_the_velocity_and_gives_it_its_no_imu_unc
     gap = Params().imu_gap_ms * 1e-3
     assert k[2] == pytest.approx(gap) and k[3] > 0
     dt = gap + 0.3
-    P_h, p_h, v_h, R_h = run(kernels.propagate_held, dt, True)
-    P_r, p_r, v_r, R_r = run(kernels.propagate, gap, True, then=0.3)
+    P_h, p_h, v_h, R_h = run(propagate_held, dt, True)
+    P_r, p_r, v_r, R_r = run(propagate, gap, True, then=0.3)
     added = P_h - P_r
     np.testing.assert_allclose(np.diag(added)[3:6], k[3] * 0.3, rtol=1e-9)
     added[3:6, 3:6] -= np.eye(3) * k[3] * 0.3
     np.testing.assert_allclose(added, 0.0, atol=1e-15)
     np.testing.assert_array_equal(R_h, R_r)
-    np.testing.assert_array_equal(v_h, run(kernels.propagate, gap, True)[2])  # no acceleration past the gap
+    np.testing.assert_array_equal(v_h, run(propagate, gap, True)[2])  # no acceleration past the gap
     np.testing.assert_allclose(p_h, p_r, atol=1e-15)
     # the whole stall under the held samples would move it much further
-    p_all = run(kernels.propagate, dt, True)[1]
+    p_all = run(propagate, dt, True)[1]
     assert np.linalg.norm(p_all) > 3 * np.linalg.norm(p_h)  # 0.5 a dt^2 against a gap (gap / 2 + 0.3 s)
     for step, imu in ((gap * 0.9, True), (dt, False)):
-        np.testing.assert_array_equal(run(kernels.propagate_held, step, imu)[0], run(kernels.propagate, step, imu)[0])
+        np.testing.assert_array_equal(run(propagate_held, step, imu)[0], run(propagate, step, imu)[0])
 
 
 def test_the_tof_offset_walks_as_the_tool_turns_only_while_it_is_free():
@@ -185,7 +124,7 @@ def test_the_tof_offset_walks_as_the_tool_turns_only_while_it_is_free():
     def var_brho(Q, w):
         P = np.eye(N) * 1e-8
         z = np.zeros(3)
-        kernels.propagate_held(
+        propagate_held(
             np.zeros(3), z.copy(), np.eye(3), P, z.copy(), z.copy(), w, np.array([0, 0, 9.8]), z.copy(),
             f.R_ti, f.r_imu_tip_tool, Q, k, dt, True,
         )  # fmt: skip
@@ -201,33 +140,6 @@ def test_the_tof_offset_walks_as_the_tool_turns_only_while_it_is_free():
     assert var_brho(f._Q_held, w_turn) == 0.0
 
 
-def test_gravity_jacobian_is_the_derivative_of_its_prediction():
-    """The gravity update's H against finite differences of its own innovation, in attitude
-    (tool coordinates, R Exp(dtheta)) and accelerometer bias, with a lever arm, a rate and an
-    angular acceleration (the centripetal and tangential terms)."""
-    rng = np.random.default_rng(5)
-    R, R_ti = so3_exp(rng.normal(size=3)), so3_exp(rng.normal(size=3))
-    lever = rng.normal(size=3) * 0.2
-    w = rng.normal(size=3)
-    bg = rng.normal(size=3) * 0.01
-    ba = rng.normal(size=3) * 0.05
-    alpha = rng.normal(size=3) * 2.0
-    f_meas = rng.normal(size=3) + np.array([0.0, 0.0, 9.8])
-    H, y0 = kernels.gravity_jacobian(R, R_ti, lever, w, bg, ba, alpha, f_meas)
-    # at zero lever arm and rate the prediction is gravity in the IMU frame plus the bias
-    _, y_still = kernels.gravity_jacobian(R, R_ti, np.zeros(3), bg, bg, ba, np.zeros(3), f_meas)
-    np.testing.assert_allclose(f_meas - y_still, R_ti.T @ R.T @ (-G) + ba, atol=1e-12)
-    eps = 1e-6
-    for j in range(N):
-        d = np.zeros(N)
-        d[j] = eps
-        Rj = R @ so3_exp(d[6:9])
-        _, yj = kernels.gravity_jacobian(Rj, R_ti, lever, w, bg, ba + d[12:15], alpha, f_meas)
-        # the innovation falls by H dx
-        np.testing.assert_allclose((y0 - yj) / eps, H[:, j], atol=1e-5, err_msg=str(j))
-    assert np.abs(H[:, 6:9]).max() > 1.0 and np.array_equal(H[:, 12:15], np.eye(3))
-
-
 def test_the_gravity_update_takes_the_shafts_point_at_the_port_at_rest():
     """A tool pivoting about the port (rate and angular acceleration, no sliding): the specific
     force at the IMU is gravity plus the centripetal and tangential terms about the port, so
@@ -241,11 +153,11 @@ def test_the_gravity_update_takes_the_shafts_point_at_the_port_at_rest():
     a_imu = np.cross(alpha, r) + np.cross(w_tool, np.cross(w_tool, r))
     f_imu = c.R_tool_imu.T @ (a_imu - R.T @ G)
     w_imu = c.R_tool_imu.T @ w_tool
-    lever = kernels.port_lever(R, p, RCM, -c.p_imu_tool_m)
+    lever = port_lever(R, p, RCM, -c.p_imu_tool_m)
     np.testing.assert_allclose(lever, -r, atol=1e-12)
-    _, y = kernels.gravity_jacobian(R, c.R_tool_imu, lever, w_imu, np.zeros(3), np.zeros(3), alpha, f_imu)
+    _, y = gravity_jacobian(R, c.R_tool_imu, lever, w_imu, np.zeros(3), np.zeros(3), alpha, f_imu)
     np.testing.assert_allclose(y, 0.0, atol=1e-12)
-    _, y_tip = kernels.gravity_jacobian(R, c.R_tool_imu, -c.p_imu_tool_m, w_imu, np.zeros(3), np.zeros(3), alpha, f_imu)
+    _, y_tip = gravity_jacobian(R, c.R_tool_imu, -c.p_imu_tool_m, w_imu, np.zeros(3), np.zeros(3), alpha, f_imu)
     assert np.linalg.norm(y_tip) > 0.5  # m/s^2: 3 deg of gravity
     f = TrackingFilter(c, Params())
     s = f.new_state(0, R, depth, f_imu)
@@ -257,8 +169,8 @@ def test_the_gravity_update_takes_the_shafts_point_at_the_port_at_rest():
 
 
 def test_the_compiled_gyro_and_gravity_steps_equal_propagate_then_the_update():
-    """`kernels.gyro_step` (propagation, angular acceleration and the RCM update in one call)
-    and `kernels.gravity_step` (propagation and the gravity update) against the same samples
+    """`kernels.steps.gyro_step` (propagation, angular acceleration and the RCM update in one call)
+    and `kernels.steps.gravity_step` (propagation and the gravity update) against the same samples
     propagated apart first (`propagate`, as the smoother runs the filter), with a stall longer
     than the IMU gap, stamps bunched closer than the angular-acceleration span, and both b_rho
     modes (free after the junction, held once the offset window has passed)."""
@@ -288,29 +200,6 @@ def test_the_compiled_gyro_and_gravity_steps_equal_propagate_then_the_update():
     assert a.brho == pytest.approx(b.brho, abs=1e-12)
 
 
-def _invariant_T(p: np.ndarray, v: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Local error = T @ right-invariant error: dp = xi_p - [q]x xi_R, dv = xi_v - [v]x xi_R,
-    dtheta = R^T xi_R (q = p - RCM)."""
-    T = np.eye(N)
-    T[0:3, 6:9] = -skew(p - RCM)
-    T[3:6, 6:9] = -skew(v)
-    T[6:9, 6:9] = R.T
-    return T
-
-
-def test_reset_carries_the_covariance_of_the_invariant_error_to_the_new_estimate():
-    rng = np.random.default_rng(5)
-    A = rng.normal(size=(N, N))
-    P = A @ A.T + np.eye(N)
-    R0, p0, v0 = so3_exp(rng.normal(size=3)), RCM + rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.05
-    dtheta, dp, dv = rng.normal(size=3) * 0.05, rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
-    dR = so3_exp(dtheta)
-    G = _invariant_T(p0 + dp, v0 + dv, R0 @ dR) @ np.linalg.inv(_invariant_T(p0, v0, R0))
-    out = P.copy()
-    kernels.reset(out, R0, dR, dp, dv)
-    np.testing.assert_allclose(out, G @ P @ G.T, rtol=1e-10, atol=1e-12)
-
-
 def _heading_information(s, rcm: np.ndarray) -> float:
     """Information along the turn of the whole state about the vertical through the RCM."""
     n = np.zeros(N)
@@ -338,7 +227,7 @@ def test_the_rcm_and_gravity_updates_tell_nothing_about_the_heading():
     p0, R0 = s.p.copy(), s.R.copy()
     for _ in range(20):
         before = _heading_information(s, f.rcm)
-        H, y = kernels.rcm_jacobian(s.R, s.p, f.rcm)
+        H, y = rcm_jacobian(s.R, s.p, f.rcm)
         assert f._update(s, H, y, np.full(2, 1e-8), 1e9, "rcm")
         assert _heading_information(s, f.rcm) == pytest.approx(before, rel=1e-8)
         before = _heading_information(s, f.rcm)
@@ -585,7 +474,7 @@ def _held_tof_matches(f: TrackingFilter, s, r_var: float, far: bool = True) -> b
     measurement variance r_var: P against the Joseph form with b_rho given no gain. The range
     is the one the map predicts, shrunk towards its far prior (`far`) or towards b_rho."""
     c = f.c
-    H, rho, _ = kernels.tof_jacobian(
+    H, rho, _ = tof_jacobian(
         s.R, s.p, s.brho, c.tof_plane_normal_base, c.tof_plane_h_m, c.tof_origin_tool_m, c.tof_beam_tool
     )
     if f.tof_map is not None:
@@ -741,10 +630,10 @@ def test_rest_releases_the_mean_rate_of_a_still_tool_chunk_by_chunk():
     prm = Params()
     k = _rest_k(prm)
     bias = np.radians([0.4, -0.7, 1.3])
-    rest = kernels.rest_init()
+    rest = rest_init()
     released = []
     for t, kind, x in _still_imu(6.0, bias, np.array([0.0, 0.0, 9.8])):
-        if kernels.rest_sample(rest, x, t, kind, k):
+        if rest_sample(rest, x, t, kind, k):
             released.append((t, rest[REST_RATE : REST_RATE + 3].copy()))
     # at rest after rest_min_ms; a chunk is released when the next one has agreed with it
     first = (prm.rest_min_ms + 2 * prm.rest_chunk_ms) * 1e-3
@@ -761,7 +650,7 @@ def test_rest_uses_no_chunk_from_a_motions_onset_nor_a_slow_smooth_motion():
     started in must not be used; nor must a slow sway that never leaves its low-pass."""
     k = _rest_k(Params())
     g = np.array([0.0, 0.0, 9.8])
-    rest = kernels.rest_init()
+    rest = rest_init()
     onset = 3.2  # the pending chunk then holds [2.5, 3.0) s and the next one is open
     released = []
     for t, kind, x in _still_imu(8.0, np.zeros(3), g):
@@ -771,11 +660,11 @@ def test_rest_uses_no_chunk_from_a_motions_onset_nor_a_slow_smooth_motion():
         else:  # gravity turns with it
             ang = math.radians(2.0) * max(t - onset, 0.0) ** 2
             x = x + 9.8 * np.array([0.0, math.sin(ang), math.cos(ang) - 1.0])
-        if kernels.rest_sample(rest, x, t, kind, k):
+        if rest_sample(rest, x, t, kind, k):
             released.append(t)
     assert released and max(released) < onset, released
     # a sway at 0.1 Hz, 5 deg/s: near its low-pass throughout (VQF's test alone calls it rest)
-    rest = kernels.rest_init()
+    rest = rest_init()
     n = 0
     for t, kind, x in _still_imu(12.0, np.zeros(3), g):
         w = 2 * math.pi * 0.1
@@ -784,7 +673,7 @@ def test_rest_uses_no_chunk_from_a_motions_onset_nor_a_slow_smooth_motion():
         else:
             ang = math.radians(5.0) * (1 - math.cos(w * t)) / w
             x = x + 9.8 * np.array([0.0, math.sin(ang), math.cos(ang) - 1.0])
-        n += kernels.rest_sample(rest, x, t, kind, k)
+        n += rest_sample(rest, x, t, kind, k)
     assert n == 0
 
 

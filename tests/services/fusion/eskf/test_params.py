@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 
 from services.fusion.eskf.params import Params, ParamsError, parse_sensors
+from services.fusion.params_file import load_params
 from tiplog.cli import main
 from tiplog.mcap_io import McapWriter
 
@@ -44,7 +45,7 @@ def test_a_bad_value_is_refused_by_name(tmp_path, text, needles):
     p = tmp_path / "p.yaml"
     p.write_text(text + "\n")
     with pytest.raises(ParamsError) as e:
-        Params.load_yaml(p)
+        load_params(p)
     msg = str(e.value)
     assert msg.startswith(str(p)) and "\n" not in msg
     for n in needles:
@@ -55,10 +56,10 @@ def test_good_values_keep_their_kind(tmp_path):
     p = tmp_path / "p.yaml"
     # YAML booleans, a whole count written 3.0, and PyYAML's strings for 1e-5-style numbers
     p.write_text("tof_map: false\nrcm_every: 3.0\naccel_bias_rw_mps2_rts: 2e-5\nhistory_ms: 2000\n")
-    prm = Params.load_yaml(p)
+    prm = load_params(p)
     assert prm.tof_map is False and prm.rcm_every == 3 and isinstance(prm.rcm_every, int)
     assert prm.accel_bias_rw_mps2_rts == 2e-5 and prm.history_ms == 2000.0 and isinstance(prm.history_ms, float)
-    assert Params.load_yaml(tmp_path / "p.yaml").to_dict() == Params.from_dict(prm.to_dict()).to_dict()
+    assert load_params(tmp_path / "p.yaml").to_dict() == Params.from_dict(prm.to_dict()).to_dict()
     Params()  # the defaults pass their own checks
 
 

@@ -210,7 +210,7 @@ def test_a_full_map_keeps_what_its_window_needs():
 
 
 def _bin(R: np.ndarray, p: np.ndarray, e, n: int = 4) -> np.ndarray:
-    """A bin as `kernels.gravity_step` sums it: n samples at (R, p), each e off."""
+    """A bin as `kernels.steps.gravity_step` sums it: n samples at (R, p), each e off."""
     acc = np.zeros(16)
     acc[:9], acc[9:12], acc[12:15], acc[15] = n * R.ravel(), n * p, n * np.asarray(e), n
     return acc

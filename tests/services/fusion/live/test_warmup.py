@@ -74,16 +74,21 @@ def test_a_real_session_needs_no_kernel_the_warm_up_did_not_load(tmp_path_factor
     pytest.importorskip("numba")
     path = bench_session(tmp_path_factory, "sweeps", seed=12, duration_s=9.0)
     script = """
-import json, sys
+import importlib, json, pkgutil, sys
 from numba.core.registry import CPUDispatcher
-from services.fusion.eskf import kernels
+from services.fusion.eskf import kernels, models
 from services.fusion.timing.runner import FusionRunner
 from services.fusion.live.warmup import warm_up
 from tiplog.calibration import Calibration
 from tiplog.mcap_io import read_messages, read_metadata
 
+# every kernel of the filter, each under the module that defines it
+mods = [importlib.import_module(f"{p.__name__}.{m.name}") for p in (kernels, models) for m in pkgutil.iter_modules(p.__path__)]
+ALL = {f"{m.__name__}.{n}": d for m in mods for n, d in vars(m).items()
+       if isinstance(d, CPUDispatcher) and d.py_func.__module__ == m.__name__}
+
 def loaded():
-    return {n: len(d.signatures) for n, d in vars(kernels).items() if isinstance(d, CPUDispatcher)}
+    return {n: len(d.signatures) for n, d in ALL.items()}
 
 path = sys.argv[1]
 calib = Calibration.from_mcap_metadata(read_metadata(path))
@@ -104,6 +109,7 @@ print(json.dumps({"before": before, "warmed": warmed, "after": loaded(), "states
     r = json.loads(out.stdout.strip().splitlines()[-1])
     assert r["states"] > 1000  # the session ran
     assert not any(r["before"].values()), r["before"]
+    assert len(r["before"]) >= 25, sorted(r["before"])  # the kernels of every module were found
     assert sum(v > 0 for v in r["warmed"].values()) >= 5, r["warmed"]
     assert r["after"] == r["warmed"], {k: (r["warmed"][k], v) for k, v in r["after"].items() if v != r["warmed"][k]}
 

@@ -13,14 +13,7 @@ import math
 
 import numpy as np
 
-try:  # numba is a dependency; without it the same functions run as plain Python (slow, same results)
-    from numba import njit
-except ImportError:  # pragma: no cover - exercised where numba is absent
-
-    def njit(*args, **kwargs):
-        if args and callable(args[0]):
-            return args[0]
-        return lambda f: f
+from services.fusion.eskf.jit_cache import njit
 
 
 @njit(cache=True, fastmath=False)

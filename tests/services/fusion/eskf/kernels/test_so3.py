@@ -1,11 +1,11 @@
-"""The scalar numba forms of eskf/so3 agree with the batch forms of tiplog.geometry (one
+"""The scalar numba forms of eskf/kernels/so3 agree with the batch forms of tiplog.geometry (one
 convention: matrices act on column vectors, Hamilton quaternions; (w, x, y, z) in so3)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from services.fusion.eskf.so3 import cross, exp_so3, quat_matrix, quat_mul, skew
+from services.fusion.eskf.kernels.so3 import cross, exp_so3, quat_matrix, quat_mul, skew
 from tiplog.geometry import quat_to_rot, so3_exp, so3_log
 from tiplog.geometry import skew as skew_batch
 
