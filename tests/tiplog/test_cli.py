@@ -106,3 +106,30 @@ def test_a_command_line_mistake_is_one_line_naming_it(argv, needles, capsys):
     assert err[0].startswith("tiplog") and ": error: " in err[0] and "--help`" in err[0], err[0]
     for n in needles:
         assert n in err[0], err[0]
+
+
+def test_python_dash_m_tiplog_is_the_command(tmp_path):
+    """`python -m tiplog`, as where the console script is not on PATH: same parser, same exit status."""
+    from tests.conftest import ROOT
+
+    ok = subprocess.run(
+        [sys.executable, "-m", "tiplog", "--version"], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
+    assert ok.returncode == 0 and ok.stdout.startswith("tiplog ")
+    bad = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "tiplog",
+            "fusion",
+            "run",
+            str(tmp_path / "missing.mcap"),
+            "--out",
+            str(tmp_path / "o.mcap"),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2 and "missing.mcap" in bad.stderr and "Traceback" not in bad.stderr
