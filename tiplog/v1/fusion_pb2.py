@@ -25,7 +25,7 @@ _sym_db = _symbol_database.Default()
 from tiplog.v1 import common_pb2 as tiplog_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x16tiplog/v1/fusion.proto\x12\ttiplog.v1\x1a\x16tiplog/v1/common.proto\"\xa7\x04\n\x0b\x46usionState\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12!\n\x05tip_m\x18\x02 \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12,\n\x10tip_velocity_mps\x18\x03 \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12*\n\x0borientation\x18\x04 \x01(\x0b\x32\x15.tiplog.v1.Quaternion\x12+\n\x0fshaft_direction\x18\x05 \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12\x10\n\x08\x64\x65pth_mm\x18\x06 \x01(\x01\x12\x10\n\x08tilt_deg\x18\x07 \x01(\x01\x12\x10\n\x08roll_deg\x18\x08 \x01(\x01\x12+\n\x0fgyro_bias_radps\x18\t \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12+\n\x0f\x61\x63\x63\x65l_bias_mps2\x18\n \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12\x15\n\rtof_offset_mm\x18\x0b \x01(\x01\x12(\n\x0ctip_sigma_mm\x18\x0c \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12\x1a\n\x12\x61ttitude_sigma_deg\x18\r \x01(\x01\x12\x15\n\rvision_locked\x18\x0e \x01(\x08\x12\x1c\n\x14last_vision_stamp_ns\x18\x0f \x01(\x03\x12\x0e\n\x06lag_ms\x18\x10 \x01(\x01\x12\x19\n\x11\x64\x65pth_smoothed_mm\x18\x11 \x01(\x01\"\xcd\x08\n\x11\x46usionDiagnostics\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12:\n\x07updates\x18\x02 \x03(\x0b\x32).tiplog.v1.FusionDiagnostics.UpdatesEntry\x12<\n\x08rejected\x18\x03 \x03(\x0b\x32*.tiplog.v1.FusionDiagnostics.RejectedEntry\x12G\n\x0einnovation_nis\x18\x04 \x03(\x0b\x32/.tiplog.v1.FusionDiagnostics.InnovationNisEntry\x12\x0f\n\x07rewinds\x18\x05 \x01(\x04\x12\x15\n\rmax_rewind_ms\x18\x06 \x01(\x01\x12\x19\n\x11vision_latency_ms\x18\x07 \x01(\x01\x12\x0e\n\x06lag_ms\x18\x08 \x01(\x01\x12\x0c\n\x04mode\x18\t \x01(\t\x12\x15\n\rvision_locked\x18\n \x01(\x08\x12\x13\n\x0binitialised\x18\x0b \x01(\x08\x12\x0e\n\x06resets\x18\x0c \x01(\x04\x12\x45\n\rreset_reasons\x18\r \x03(\x0b\x32..tiplog.v1.FusionDiagnostics.ResetReasonsEntry\x12\x0e\n\x06inputs\x18\x0e \x01(\x04\x12\x19\n\x11prediction_lag_ms\x18\x0f \x01(\x01\x12\x13\n\x0bqueue_drops\x18\x10 \x01(\x04\x12<\n\x08\x64\x65\x66\x65rred\x18\x11 \x03(\x0b\x32*.tiplog.v1.FusionDiagnostics.DeferredEntry\x12\x41\n\x0bnoise_scale\x18\x12 \x03(\x0b\x32,.tiplog.v1.FusionDiagnostics.NoiseScaleEntry\x12=\n\tset_aside\x18\x13 \x03(\x0b\x32*.tiplog.v1.FusionDiagnostics.SetAsideEntry\x12\r\n\x05\x61side\x18\x14 \x03(\t\x1a.\n\x0cUpdatesEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a/\n\rRejectedEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a\x34\n\x12InnovationNisEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x01:\x02\x38\x01\x1a\x33\n\x11ResetReasonsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a/\n\rDeferredEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a\x31\n\x0fNoiseScaleEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x01:\x02\x38\x01\x1a/\n\rSetAsideEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x16tiplog/v1/fusion.proto\x12\ttiplog.v1\x1a\x16tiplog/v1/common.proto\"\xa7\x04\n\x0b\x46usionState\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12!\n\x05tip_m\x18\x02 \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12,\n\x10tip_velocity_mps\x18\x03 \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12*\n\x0borientation\x18\x04 \x01(\x0b\x32\x15.tiplog.v1.Quaternion\x12+\n\x0fshaft_direction\x18\x05 \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12\x10\n\x08\x64\x65pth_mm\x18\x06 \x01(\x01\x12\x10\n\x08tilt_deg\x18\x07 \x01(\x01\x12\x10\n\x08roll_deg\x18\x08 \x01(\x01\x12+\n\x0fgyro_bias_radps\x18\t \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12+\n\x0f\x61\x63\x63\x65l_bias_mps2\x18\n \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12\x15\n\rtof_offset_mm\x18\x0b \x01(\x01\x12(\n\x0ctip_sigma_mm\x18\x0c \x01(\x0b\x32\x12.tiplog.v1.Vector3\x12\x1a\n\x12\x61ttitude_sigma_deg\x18\r \x01(\x01\x12\x15\n\rvision_locked\x18\x0e \x01(\x08\x12\x1c\n\x14last_vision_stamp_ns\x18\x0f \x01(\x03\x12\x0e\n\x06lag_ms\x18\x10 \x01(\x01\x12\x19\n\x11\x64\x65pth_smoothed_mm\x18\x11 \x01(\x01\"\xb6\n\n\x11\x46usionDiagnostics\x12!\n\x06header\x18\x01 \x01(\x0b\x32\x11.tiplog.v1.Header\x12:\n\x07updates\x18\x02 \x03(\x0b\x32).tiplog.v1.FusionDiagnostics.UpdatesEntry\x12<\n\x08rejected\x18\x03 \x03(\x0b\x32*.tiplog.v1.FusionDiagnostics.RejectedEntry\x12G\n\x0einnovation_nis\x18\x04 \x03(\x0b\x32/.tiplog.v1.FusionDiagnostics.InnovationNisEntry\x12\x0f\n\x07rewinds\x18\x05 \x01(\x04\x12\x15\n\rmax_rewind_ms\x18\x06 \x01(\x01\x12\x19\n\x11vision_latency_ms\x18\x07 \x01(\x01\x12\x0e\n\x06lag_ms\x18\x08 \x01(\x01\x12\x0c\n\x04mode\x18\t \x01(\t\x12\x15\n\rvision_locked\x18\n \x01(\x08\x12\x13\n\x0binitialised\x18\x0b \x01(\x08\x12\x0e\n\x06resets\x18\x0c \x01(\x04\x12\x45\n\rreset_reasons\x18\r \x03(\x0b\x32..tiplog.v1.FusionDiagnostics.ResetReasonsEntry\x12\x0e\n\x06inputs\x18\x0e \x01(\x04\x12\x19\n\x11prediction_lag_ms\x18\x0f \x01(\x01\x12\x13\n\x0bqueue_drops\x18\x10 \x01(\x04\x12<\n\x08\x64\x65\x66\x65rred\x18\x11 \x03(\x0b\x32*.tiplog.v1.FusionDiagnostics.DeferredEntry\x12\x41\n\x0bnoise_scale\x18\x12 \x03(\x0b\x32,.tiplog.v1.FusionDiagnostics.NoiseScaleEntry\x12=\n\tset_aside\x18\x13 \x03(\x0b\x32*.tiplog.v1.FusionDiagnostics.SetAsideEntry\x12\r\n\x05\x61side\x18\x14 \x03(\t\x12\x39\n\x07held_up\x18\x15 \x03(\x0b\x32(.tiplog.v1.FusionDiagnostics.HeldUpEntry\x12G\n\x0e\x63lock_restarts\x18\x16 \x03(\x0b\x32/.tiplog.v1.FusionDiagnostics.ClockRestartsEntry\x1a.\n\x0cUpdatesEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a/\n\rRejectedEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a\x34\n\x12InnovationNisEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x01:\x02\x38\x01\x1a\x33\n\x11ResetReasonsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a/\n\rDeferredEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a\x31\n\x0fNoiseScaleEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x01:\x02\x38\x01\x1a/\n\rSetAsideEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a-\n\x0bHeldUpEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x1a\x34\n\x12\x43lockRestartsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -46,22 +46,30 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_FUSIONDIAGNOSTICS_NOISESCALEENTRY']._serialized_options = b'8\001'
   _globals['_FUSIONDIAGNOSTICS_SETASIDEENTRY']._loaded_options = None
   _globals['_FUSIONDIAGNOSTICS_SETASIDEENTRY']._serialized_options = b'8\001'
+  _globals['_FUSIONDIAGNOSTICS_HELDUPENTRY']._loaded_options = None
+  _globals['_FUSIONDIAGNOSTICS_HELDUPENTRY']._serialized_options = b'8\001'
+  _globals['_FUSIONDIAGNOSTICS_CLOCKRESTARTSENTRY']._loaded_options = None
+  _globals['_FUSIONDIAGNOSTICS_CLOCKRESTARTSENTRY']._serialized_options = b'8\001'
   _globals['_FUSIONSTATE']._serialized_start=62
   _globals['_FUSIONSTATE']._serialized_end=613
   _globals['_FUSIONDIAGNOSTICS']._serialized_start=616
-  _globals['_FUSIONDIAGNOSTICS']._serialized_end=1717
-  _globals['_FUSIONDIAGNOSTICS_UPDATESENTRY']._serialized_start=1366
-  _globals['_FUSIONDIAGNOSTICS_UPDATESENTRY']._serialized_end=1412
-  _globals['_FUSIONDIAGNOSTICS_REJECTEDENTRY']._serialized_start=1414
-  _globals['_FUSIONDIAGNOSTICS_REJECTEDENTRY']._serialized_end=1461
-  _globals['_FUSIONDIAGNOSTICS_INNOVATIONNISENTRY']._serialized_start=1463
-  _globals['_FUSIONDIAGNOSTICS_INNOVATIONNISENTRY']._serialized_end=1515
-  _globals['_FUSIONDIAGNOSTICS_RESETREASONSENTRY']._serialized_start=1517
-  _globals['_FUSIONDIAGNOSTICS_RESETREASONSENTRY']._serialized_end=1568
-  _globals['_FUSIONDIAGNOSTICS_DEFERREDENTRY']._serialized_start=1570
-  _globals['_FUSIONDIAGNOSTICS_DEFERREDENTRY']._serialized_end=1617
-  _globals['_FUSIONDIAGNOSTICS_NOISESCALEENTRY']._serialized_start=1619
-  _globals['_FUSIONDIAGNOSTICS_NOISESCALEENTRY']._serialized_end=1668
-  _globals['_FUSIONDIAGNOSTICS_SETASIDEENTRY']._serialized_start=1670
-  _globals['_FUSIONDIAGNOSTICS_SETASIDEENTRY']._serialized_end=1717
+  _globals['_FUSIONDIAGNOSTICS']._serialized_end=1950
+  _globals['_FUSIONDIAGNOSTICS_UPDATESENTRY']._serialized_start=1498
+  _globals['_FUSIONDIAGNOSTICS_UPDATESENTRY']._serialized_end=1544
+  _globals['_FUSIONDIAGNOSTICS_REJECTEDENTRY']._serialized_start=1546
+  _globals['_FUSIONDIAGNOSTICS_REJECTEDENTRY']._serialized_end=1593
+  _globals['_FUSIONDIAGNOSTICS_INNOVATIONNISENTRY']._serialized_start=1595
+  _globals['_FUSIONDIAGNOSTICS_INNOVATIONNISENTRY']._serialized_end=1647
+  _globals['_FUSIONDIAGNOSTICS_RESETREASONSENTRY']._serialized_start=1649
+  _globals['_FUSIONDIAGNOSTICS_RESETREASONSENTRY']._serialized_end=1700
+  _globals['_FUSIONDIAGNOSTICS_DEFERREDENTRY']._serialized_start=1702
+  _globals['_FUSIONDIAGNOSTICS_DEFERREDENTRY']._serialized_end=1749
+  _globals['_FUSIONDIAGNOSTICS_NOISESCALEENTRY']._serialized_start=1751
+  _globals['_FUSIONDIAGNOSTICS_NOISESCALEENTRY']._serialized_end=1800
+  _globals['_FUSIONDIAGNOSTICS_SETASIDEENTRY']._serialized_start=1802
+  _globals['_FUSIONDIAGNOSTICS_SETASIDEENTRY']._serialized_end=1849
+  _globals['_FUSIONDIAGNOSTICS_HELDUPENTRY']._serialized_start=1851
+  _globals['_FUSIONDIAGNOSTICS_HELDUPENTRY']._serialized_end=1896
+  _globals['_FUSIONDIAGNOSTICS_CLOCKRESTARTSENTRY']._serialized_start=1898
+  _globals['_FUSIONDIAGNOSTICS_CLOCKRESTARTSENTRY']._serialized_end=1950
 # @@protoc_insertion_point(module_scope)

@@ -46,7 +46,7 @@ class FusionState(_message.Message):
     def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., tip_m: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., tip_velocity_mps: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., orientation: _Optional[_Union[_common_pb2.Quaternion, _Mapping]] = ..., shaft_direction: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., depth_mm: _Optional[float] = ..., tilt_deg: _Optional[float] = ..., roll_deg: _Optional[float] = ..., gyro_bias_radps: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., accel_bias_mps2: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., tof_offset_mm: _Optional[float] = ..., tip_sigma_mm: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., attitude_sigma_deg: _Optional[float] = ..., vision_locked: _Optional[bool] = ..., last_vision_stamp_ns: _Optional[int] = ..., lag_ms: _Optional[float] = ..., depth_smoothed_mm: _Optional[float] = ...) -> None: ...
 
 class FusionDiagnostics(_message.Message):
-    __slots__ = ("header", "updates", "rejected", "innovation_nis", "rewinds", "max_rewind_ms", "vision_latency_ms", "lag_ms", "mode", "vision_locked", "initialised", "resets", "reset_reasons", "inputs", "prediction_lag_ms", "queue_drops", "deferred", "noise_scale", "set_aside", "aside")
+    __slots__ = ("header", "updates", "rejected", "innovation_nis", "rewinds", "max_rewind_ms", "vision_latency_ms", "lag_ms", "mode", "vision_locked", "initialised", "resets", "reset_reasons", "inputs", "prediction_lag_ms", "queue_drops", "deferred", "noise_scale", "set_aside", "aside", "held_up", "clock_restarts")
     class UpdatesEntry(_message.Message):
         __slots__ = ("key", "value")
         KEY_FIELD_NUMBER: _ClassVar[int]
@@ -96,6 +96,20 @@ class FusionDiagnostics(_message.Message):
         key: str
         value: int
         def __init__(self, key: _Optional[str] = ..., value: _Optional[int] = ...) -> None: ...
+    class HeldUpEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: int
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[int] = ...) -> None: ...
+    class ClockRestartsEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: int
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[int] = ...) -> None: ...
     HEADER_FIELD_NUMBER: _ClassVar[int]
     UPDATES_FIELD_NUMBER: _ClassVar[int]
     REJECTED_FIELD_NUMBER: _ClassVar[int]
@@ -116,6 +130,8 @@ class FusionDiagnostics(_message.Message):
     NOISE_SCALE_FIELD_NUMBER: _ClassVar[int]
     SET_ASIDE_FIELD_NUMBER: _ClassVar[int]
     ASIDE_FIELD_NUMBER: _ClassVar[int]
+    HELD_UP_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_RESTARTS_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     updates: _containers.ScalarMap[str, int]
     rejected: _containers.ScalarMap[str, int]
@@ -136,4 +152,6 @@ class FusionDiagnostics(_message.Message):
     noise_scale: _containers.ScalarMap[str, float]
     set_aside: _containers.ScalarMap[str, int]
     aside: _containers.RepeatedScalarFieldContainer[str]
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., updates: _Optional[_Mapping[str, int]] = ..., rejected: _Optional[_Mapping[str, int]] = ..., innovation_nis: _Optional[_Mapping[str, float]] = ..., rewinds: _Optional[int] = ..., max_rewind_ms: _Optional[float] = ..., vision_latency_ms: _Optional[float] = ..., lag_ms: _Optional[float] = ..., mode: _Optional[str] = ..., vision_locked: _Optional[bool] = ..., initialised: _Optional[bool] = ..., resets: _Optional[int] = ..., reset_reasons: _Optional[_Mapping[str, int]] = ..., inputs: _Optional[int] = ..., prediction_lag_ms: _Optional[float] = ..., queue_drops: _Optional[int] = ..., deferred: _Optional[_Mapping[str, int]] = ..., noise_scale: _Optional[_Mapping[str, float]] = ..., set_aside: _Optional[_Mapping[str, int]] = ..., aside: _Optional[_Iterable[str]] = ...) -> None: ...
+    held_up: _containers.ScalarMap[str, int]
+    clock_restarts: _containers.ScalarMap[str, int]
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., updates: _Optional[_Mapping[str, int]] = ..., rejected: _Optional[_Mapping[str, int]] = ..., innovation_nis: _Optional[_Mapping[str, float]] = ..., rewinds: _Optional[int] = ..., max_rewind_ms: _Optional[float] = ..., vision_latency_ms: _Optional[float] = ..., lag_ms: _Optional[float] = ..., mode: _Optional[str] = ..., vision_locked: _Optional[bool] = ..., initialised: _Optional[bool] = ..., resets: _Optional[int] = ..., reset_reasons: _Optional[_Mapping[str, int]] = ..., inputs: _Optional[int] = ..., prediction_lag_ms: _Optional[float] = ..., queue_drops: _Optional[int] = ..., deferred: _Optional[_Mapping[str, int]] = ..., noise_scale: _Optional[_Mapping[str, float]] = ..., set_aside: _Optional[_Mapping[str, int]] = ..., aside: _Optional[_Iterable[str]] = ..., held_up: _Optional[_Mapping[str, int]] = ..., clock_restarts: _Optional[_Mapping[str, int]] = ...) -> None: ...

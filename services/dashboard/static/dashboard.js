@@ -177,6 +177,8 @@
       for (const [k, v] of Object.entries(diag.noise_scale || {}))
         drows.push([[`noise factor ${k}`, fmt(v, 1) + (aside.has(k) ? " (set aside)" : "")]]);
       for (const [k, v] of Object.entries(diag.set_aside || {})) drows.push([[`set aside ${k}`, String(v)]]);
+      for (const [k, v] of Object.entries(diag.held_up || {})) drows.push([[`held up ${k} (host stalled)`, String(v)]]);
+      for (const [k, v] of Object.entries(diag.clock_restarts || {})) drows.push([[`device clock restarts ${k}`, String(v)]]);
     } else drows.push([["diagnostics", "none received"]]);
     fillTable($("diagnostics").tBodies[0], drows);
     const env = st.envelope;

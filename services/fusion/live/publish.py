@@ -73,6 +73,10 @@ def to_diagnostics(
     for k, v in (diag.get("set_aside") or {}).items():
         m.set_aside[str(k)] = _u64(v)
     m.aside.extend(str(k) for k in diag.get("aside") or ())
+    for k, v in (diag.get("held_up") or {}).items():
+        m.held_up[str(k)] = _u64(v)
+    for k, v in (diag.get("clock_restarts") or {}).items():
+        m.clock_restarts[str(k)] = _u64(v)
     return m
 
 

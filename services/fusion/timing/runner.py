@@ -263,6 +263,8 @@ class FusionRunner:
             "corrupt": int(self.stats["corrupt"]),
             "initialised": s is not None,
             "vision_locked": bool(s is not None and (s.t_ns - s.last_vision_ns) <= self.lock_ns),
+            "held_up": {k: c.held for k, c in self.adapter.clocks.items() if c.held},
+            "clock_restarts": {k: c.restarts for k, c in self.adapter.clocks.items() if c.restarts},
         }
 
     # ------------------------------------------------------------------ machinery

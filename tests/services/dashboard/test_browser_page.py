@@ -11,7 +11,7 @@ import pytest
 from tests.services.dashboard.conftest import OPERATOR, make_state
 from tiplog.bus import Bus
 from tiplog.clock import now_ns
-from tiplog.v1 import device_pb2
+from tiplog.v1 import device_pb2, fusion_pb2
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -57,6 +57,17 @@ def test_the_page_breaks_holds_shows_the_tof_and_marks_stale(browser, served, bu
         page.wait_for_function("document.getElementById('v-tof-smoothed').textContent === '123.4'", timeout=10_000)
         api = served.client(OPERATOR).get("/api/state").json()
         assert "depth_smoothed_mm" not in api["state"] and api["tof"]["range_smoothed_mm"] == 123.4
+
+        # samples a stalled host held up, and a device clock taken anew, are listed by stream
+        diag = fusion_pb2.FusionDiagnostics(mode="full", initialised=True)
+        diag.header.stamp_ns = now_ns()
+        diag.held_up["gyro"], diag.clock_restarts["tof"] = 120, 1
+        served.pub_bus.publisher("fusion/diagnostics").put(diag)
+        page.wait_for_function(
+            "document.getElementById('diagnostics').textContent.includes('held up gyro (host stalled)120')",
+            timeout=10_000,
+        )
+        assert "device clock restarts tof1" in page.text_content("#diagnostics")
 
         # Nothing more comes: the numbers stay, dimmed and said to be stale.
         page.wait_for_function(

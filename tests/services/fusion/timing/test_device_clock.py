@@ -101,12 +101,16 @@ def test_a_host_stall_leaves_the_estimate_as_it_was(tmp_path_factory, tmp_path):
     stalled = tmp_path / "stalled.mcap"
     held = _held_up(session, stalled, t_first + 5_000_000_000, t_first + 5_600_000_000)
     assert held > 150  # gyro, accel and ToF samples of 600 ms
-    outs = []
+    outs, held_up = [], []
     for name, src in (("clean", session), ("stalled", stalled)):
         out = tmp_path / f"{name}_est.mcap"
         assert tiplog_main(["fusion", "run", str(src), "--out", str(out), "--quiet"]) == 0
         outs.append(_states(out))
+        *_, diag = read_messages(out, ["fusion/diagnostics"])
+        held_up.append(dict(diag.message.held_up))
     clean, stall = outs
+    # counted in the diagnostics: 600 ms of gyro (200 Hz) and accelerometer samples held up
+    assert held_up[0] == {} and held_up[1]["gyro"] >= 110 and held_up[1]["accel"] >= 110, held_up
     # a state at every gyro sample in both, each at its sample's time (the held-up ones too)
     assert clean.shape == stall.shape
     assert np.abs(clean[:, 0] - stall[:, 0]).max() < 100_000
