@@ -38,21 +38,20 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from services.fusion.eskf.jit_cache import drop_stale_for, sources
+from services.fusion.eskf import jit_cache
 from services.fusion.eskf.kernels.rest import rest_init, rest_sample
 from services.fusion.eskf.kernels.so3 import quat_matrix, quat_mul
 from services.fusion.eskf.layout import REST_RATE, rest_constants
 
-try:  # a dependency (compiles the time loop, about 100x faster); plain Python where it is absent
-    from numba import njit
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - exercised where numba is absent
-    HAVE_NUMBA = False
+# numba, a dependency, compiles the time loop (about 100x faster); plain Python where it is absent
+HAVE_NUMBA = jit_cache.numba is not None
 
 
 def jit(f):
-    return njit(cache=True, nogil=True)(f) if HAVE_NUMBA else f
+    # through `jit_cache.njit`: numba keys this module's cache on this file alone, and the rest
+    # detector, the quaternion helpers (eskf/kernels/) and layout.py's constants are compiled in
+    # too, so the cache goes when any file the filter's kernels compile in changes
+    return jit_cache.njit(cache=True, nogil=True)(f)
 
 
 _DEG = math.pi / 180.0
@@ -362,12 +361,6 @@ def _acc_step(a, dt, st, prm, qnow, qtmp, corr, R, H, e) -> None:
         st[_P + k] = P2.ravel()[k]
     for k in range(3):
         st[_BIAS + k] = min(max(st[_BIAS + k] + db[k] * _DEG, -clip), clip)
-
-
-# numba keys this module's cache on this file alone: the rest detector and the quaternion
-# helpers (eskf/kernels/) and layout.py's constants are compiled in too, so it is dropped when
-# any file the filter's kernels compile in changes (`jit_cache.sources`, a superset of its own)
-drop_stale_for(_run, sources())
 
 
 def input_rows(t_s, gyr_radps, acc_mps2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -40,15 +40,14 @@ def _sources_digest() -> str:
     return digest(sources())
 
 
-def drop_stale(cache_dir: str | os.PathLike, stem: str, deps: Sequence[str | os.PathLike] | str) -> bool:
+def drop_stale(cache_dir: str | os.PathLike, stem: str, now: str) -> bool:
     """Remove `stem`'s numba cache files (`stem.*.nbi`, `stem.*.nbc`) in `cache_dir` when the
-    digest of `deps` (files, or their digest) is not the one recorded there (`stem.deps`), then
-    record it. Returns whether files were removed. Quiet where the folder cannot be read or
-    written (a read-only install keeps what it has)."""
+    sources' digest `now` is not the one recorded there (`stem.deps`), then record it. Returns
+    whether files were removed. Quiet where the folder cannot be read or written (a read-only
+    install keeps what it has)."""
     folder = Path(cache_dir)
     stamp = folder / f"{stem}.deps"
     try:
-        now = deps if isinstance(deps, str) else digest(deps)
         if stamp.is_file() and stamp.read_text() == now:
             return False
         folder.mkdir(parents=True, exist_ok=True)
@@ -72,12 +71,6 @@ def cache_of(dispatcher) -> tuple[str, str] | None:
         return dispatcher._cache._cache_path, Path(dispatcher.py_func.__code__.co_filename).stem
     except AttributeError:
         return None
-
-
-def drop_stale_for(dispatcher, deps: Sequence[str | os.PathLike] | str) -> bool:
-    """`drop_stale` for the module of a numba dispatcher compiled with cache=True."""
-    where = cache_of(dispatcher)
-    return drop_stale(*where, deps) if where is not None else False
 
 
 _checked: set[tuple[str, str]] = set()

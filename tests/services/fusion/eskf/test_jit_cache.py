@@ -26,15 +26,15 @@ def test_cached_kernels_go_when_a_dependency_changes_and_stay_otherwise(tmp_path
     theirs = ["stepsx.f-1.py311.nbi", "so3.exp_into-40.py311.nbi", "so3.exp_into-40.py311.1.nbc"]
     _cache(cache, ours + theirs)
     # no digest recorded yet (a cache older than the record): dropped once, then recorded
-    assert drop_stale(cache, "steps", [dep]) is True
+    assert drop_stale(cache, "steps", digest([dep])) is True
     assert sorted(p.name for p in cache.iterdir()) == sorted(["steps.deps", *theirs])
     _cache(cache, ours)  # compiled again
-    assert drop_stale(cache, "steps", [dep]) is False  # the same source: kept
+    assert drop_stale(cache, "steps", digest([dep])) is False  # the same source: kept
     assert all((cache / n).exists() for n in ours)
     dep.write_text("A = 2\n")  # an edit of the dependency alone
-    assert drop_stale(cache, "steps", [dep]) is True
+    assert drop_stale(cache, "steps", digest([dep])) is True
     assert not any((cache / n).exists() for n in ours) and all((cache / n).exists() for n in theirs)
-    assert drop_stale(cache, "steps", [dep]) is False
+    assert drop_stale(cache, "steps", digest([dep])) is False
 
 
 def test_a_folder_that_cannot_be_written_is_left_as_it_is(tmp_path):
@@ -42,7 +42,7 @@ def test_a_folder_that_cannot_be_written_is_left_as_it_is(tmp_path):
     dep.write_text("N = 16\n")
     blocked = tmp_path / "file"
     blocked.write_text("")  # a file where the cache folder would be
-    assert drop_stale(blocked / "__pycache__", "steps", [dep]) is False
+    assert drop_stale(blocked / "__pycache__", "steps", digest([dep])) is False
 
 
 def test_the_sources_are_every_kernel_and_model_module_and_the_layout():
