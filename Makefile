@@ -46,7 +46,8 @@ $(MCAP_NODE)/node_modules/.installed: $(MCAP_NODE)/package-lock.json
 # The suite on TEST_WORKERS processes (pytest-xdist). Most tests wait on subprocesses, the bus and
 # sleeps more than they compute, hence more workers than a two-core machine has cores. loadgroup:
 # the tests that start a whole system run on one worker in turn (WHOLE_SYSTEM in
-# tests/conftest.py); the few that assert a wall-clock deadline run alone afterwards (marked `realtime`).
+# tests/conftest.py); the few that assert a wall-clock deadline, and the demo watched in the browser
+# (which alone keeps both cores busy), run alone afterwards (marked `realtime`).
 # `python -m pytest -q` still runs the whole suite in one process.
 TEST_WORKERS ?= 4
 test: $(STAMP) $(KERNELS) browser compose $(MCAP_NODE)/node_modules/.installed

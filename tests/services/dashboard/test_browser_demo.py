@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,7 +26,11 @@ from tiplog.clock import now_ns
 from tiplog.up import DEFAULT_SERVICES
 from tiplog.v1 import fusion_pb2
 
-pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(900)]
+# realtime: run alone after the parallel run. The demo alone keeps both cores of this machine
+# busy (its renderer and vision network take what they are given); beside three other workers and
+# a second whole system the host's load reached 27, fusion ran 2 s behind and the trail's checks
+# measured the test machine, not the demo a user runs.
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(900)]
 
 WATCH_S = 60.0
 # The page's own rule (draw.js): a tip moves under 2 m/s, plus 2 mm for a filter correction;
@@ -114,9 +119,11 @@ def watched(browser, artifacts, tmp_path_factory) -> Watched:
                     const v = parseFloat(document.getElementById('v-tof-smoothed').textContent);
                     if (v === v) window.tofShownMax = Math.max(window.tofShownMax, v); }, 200); }"""
             )
-            for shot in (30, 60):
-                page.wait_for_timeout(WATCH_S / 2 * 1000)
-                page.screenshot(path=str(artifacts / f"demo-{shot}s.png"), full_page=True, timeout=SHOT_TIMEOUT_MS)
+            # the screenshots' own time (seconds on a busy page) counts in the minute
+            start = time.monotonic()
+            for at_s in (WATCH_S / 2, WATCH_S):
+                page.wait_for_timeout(max(0.0, start + at_s - time.monotonic()) * 1000)
+                page.screenshot(path=str(artifacts / f"demo-{at_s:.0f}s.png"), full_page=True, timeout=SHOT_TIMEOUT_MS)
                 up.check_alive()
             shown = page.evaluate(
                 """() => ({
