@@ -225,8 +225,10 @@ def standby(stop: threading.Event, slog: logging.Logger) -> bool:
     woke = threading.Event()
 
     def read() -> None:
+        # os.read, not sys.stdin's buffered reader: a spare told to stop exits with this thread
+        # still waiting, and a buffered reader's lock held then is a fatal error at interpreter exit.
         try:
-            line = sys.stdin.buffer.readline()
+            line = os.read(sys.stdin.fileno(), 4096)
         except (OSError, ValueError):
             line = b""
         if line.strip():

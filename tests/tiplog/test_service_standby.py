@@ -3,7 +3,6 @@ file (its supervisor gone) or a stop signal, never joining the bus meanwhile."""
 
 from __future__ import annotations
 
-import io
 import logging
 import os
 import sys
@@ -14,25 +13,28 @@ from tiplog.service import standby
 LOG = logging.getLogger("test")
 
 
-class _Stdin:
-    def __init__(self, buffer) -> None:
-        self.buffer = buffer
+def _stdin(monkeypatch, written: bytes | None):
+    """A pipe as stdin with `written` in it, closed for writing unless None."""
+    r, w = os.pipe()
+    if written is not None:
+        os.write(w, written)
+        os.close(w)
+    monkeypatch.setattr(sys, "stdin", os.fdopen(r, "rb"))
+    return w
 
 
 def test_a_line_calls_the_spare_up(monkeypatch):
-    monkeypatch.setattr(sys, "stdin", _Stdin(io.BytesIO(b"up\n")))
+    _stdin(monkeypatch, b"up\n")
     assert standby(threading.Event(), LOG) is True
 
 
 def test_end_of_file_ends_it(monkeypatch):
-    monkeypatch.setattr(sys, "stdin", _Stdin(io.BytesIO(b"")))
+    _stdin(monkeypatch, b"")
     assert standby(threading.Event(), LOG) is False
 
 
 def test_a_stop_ends_it_while_nothing_comes(monkeypatch):
-    r, w = os.pipe()
-    f = os.fdopen(r, "rb")
-    monkeypatch.setattr(sys, "stdin", _Stdin(f))
+    w = _stdin(monkeypatch, None)
     stop = threading.Event()
     threading.Timer(0.05, stop.set).start()
     try:
@@ -40,3 +42,4 @@ def test_a_stop_ends_it_while_nothing_comes(monkeypatch):
     finally:
         os.close(w)  # the reader thread sees end of file and lets go of the file
         monkeypatch.undo()
+
