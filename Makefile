@@ -50,9 +50,12 @@ $(MCAP_NODE)/node_modules/.installed: $(MCAP_NODE)/package-lock.json
 # (which alone keeps both cores busy), run alone afterwards (marked `realtime`).
 # `python -m pytest -q` still runs the whole suite in one process.
 TEST_WORKERS ?= 4
+# The files that hold a realtime test: the second run imports those alone (collecting the whole
+# suite again to pick them out takes 10 s).
+REALTIME_FILES = $(shell grep -rl 'mark\.realtime' tests --include='test_*.py')
 test: $(STAMP) $(KERNELS) browser compose $(MCAP_NODE)/node_modules/.installed
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not realtime"
-	$(PY) -m pytest -q -m realtime
+	$(PY) -m pytest -q -m realtime $(REALTIME_FILES)
 
 # The long accuracy checks against the bench's truth (benchmarks/accuracy_checks: each generates
 # minutes of bench sessions), apart from `make test`.
