@@ -11,16 +11,18 @@ closed. `?download=1` serves the same JSON as a file.
 import json
 import math
 from collections.abc import Callable
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Response
 
 from services.dashboard.auth import Role
 from services.dashboard.feed import REF_COLUMNS, STATE_COLUMNS, BusFeed
-from services.fusion.skill.assess import METRICS, MetricsParams, resample, segment_metrics
 from tiplog.clock import now_ns
 from tiplog.v1 import recorder_pb2
+
+if TYPE_CHECKING:
+    from services.fusion.skill.assess import MetricsParams
 
 _X = STATE_COLUMNS.index("x_mm")
 _ROLL = STATE_COLUMNS.index("roll_deg")
@@ -45,8 +47,12 @@ def _clean(d: dict[str, float]) -> dict[str, float | None]:
     return {k: (v if math.isfinite(v) else None) for k, v in d.items()}
 
 
-def current_metrics(feed: BusFeed, params: MetricsParams) -> dict[str, Any]:
+def current_metrics(feed: BusFeed, params: "MetricsParams | None" = None) -> dict[str, Any]:
     """The metrics of the running recording's trail (see the module docstring)."""
+    # Imported at the first request: the metrics' scipy is 1 s of the dashboard's 1.6 s import.
+    from services.fusion.skill.assess import METRICS, MetricsParams, resample, segment_metrics
+
+    params = params or MetricsParams(draws=0)
     if feed.calibration is None:
         raise HTTPException(409, "no calibration: the dashboard needs the RCM (configure calibration_file)")
     status = feed.latest.get("recorder/status")
@@ -80,12 +86,11 @@ def router(feed: BusFeed, require: Callable[[Role], Any]) -> APIRouter:
     """The /api/metrics route; `require(role)` is the authentication dependency."""
     api = APIRouter(tags=["metrics"])
     Viewer = Annotated[Role, Depends(require(Role.VIEWER))]
-    params = MetricsParams(draws=0)
 
     @api.get("/api/metrics", responses={409: {"description": "no calibration, or too little trail yet"}})
     def metrics(_role: Viewer, download: bool = False) -> Response:
         """Skill-assessment metrics of the current recording's trail (no intervals: see docs/metrics.md)."""
-        body = json.dumps(current_metrics(feed, params), indent=2)
+        body = json.dumps(current_metrics(feed), indent=2)
         headers = {"Content-Disposition": 'attachment; filename="metrics.json"'} if download else {}
         return Response(body, media_type="application/json", headers=headers)
 
