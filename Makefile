@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 
-.PHONY: demo test accuracy install browser compose proto lint bench clean
+.PHONY: demo test accuracy install browser compose proto lint bench clean rewritten-tests
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -53,9 +53,18 @@ TEST_WORKERS ?= 4
 # The files that hold a realtime test: the second run imports those alone (collecting the whole
 # suite again to pick them out takes 10 s).
 REALTIME_FILES = $(shell grep -rl 'mark\.realtime' tests --include='test_*.py')
-test: $(STAMP) $(KERNELS) browser compose $(MCAP_NODE)/node_modules/.installed
+test: $(STAMP) browser compose $(MCAP_NODE)/node_modules/.installed
+	$(MAKE) --no-print-directory -j2 $(KERNELS) rewritten-tests
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not realtime"
 	$(PY) -m pytest -q -m realtime $(REALTIME_FILES)
+
+# pytest's rewritten test modules (its assertion rewriting) into their __pycache__ once, on the
+# core the kernels' compiler leaves free. Where PYTHONDONTWRITEBYTECODE is set, pytest keeps
+# none, and every worker rewrites every test file again: 12 of its 18 s of collection. Every
+# run reads them whatever that variable says.
+rewritten-tests: $(STAMP)
+	@out=$$(env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q --collect-only -p no:cacheprovider 2>&1) \
+		|| { echo "$$out" | tail -40; exit 1; }
 
 # The long accuracy checks against the bench's truth (benchmarks/accuracy_checks: each generates
 # minutes of bench sessions), apart from `make test`.
