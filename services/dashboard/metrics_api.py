@@ -11,7 +11,7 @@ closed. `?download=1` serves the same JSON as a file.
 import json
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Response
@@ -20,9 +20,6 @@ from services.dashboard.auth import Role
 from services.dashboard.feed import REF_COLUMNS, STATE_COLUMNS, BusFeed
 from tiplog.clock import now_ns
 from tiplog.v1 import recorder_pb2
-
-if TYPE_CHECKING:
-    from services.fusion.skill.assess import MetricsParams
 
 _X = STATE_COLUMNS.index("x_mm")
 _ROLL = STATE_COLUMNS.index("roll_deg")
@@ -47,12 +44,12 @@ def _clean(d: dict[str, float]) -> dict[str, float | None]:
     return {k: (v if math.isfinite(v) else None) for k, v in d.items()}
 
 
-def current_metrics(feed: BusFeed, params: "MetricsParams | None" = None) -> dict[str, Any]:
+def current_metrics(feed: BusFeed) -> dict[str, Any]:
     """The metrics of the running recording's trail (see the module docstring)."""
     # Imported at the first request: the metrics' scipy is 1 s of the dashboard's 1.6 s import.
     from services.fusion.skill.assess import METRICS, MetricsParams, resample, segment_metrics
 
-    params = params or MetricsParams(draws=0)
+    params = MetricsParams(draws=0)  # the trail carries no sigmas: no intervals
     if feed.calibration is None:
         raise HTTPException(409, "no calibration: the dashboard needs the RCM (configure calibration_file)")
     status = feed.latest.get("recorder/status")
