@@ -25,6 +25,7 @@ def test_info_gaps_equal_the_recorder_counts_across_a_gateway_restart(tmp_path):
     config = system_config(tmp_path)
     del config["dashboard"]
     gyro_by_publisher: Counter[int] = Counter()
+    recorded = [0]  # device/gyro samples the recorder has received, by its latest status
     cv = threading.Condition()
 
     def on_gyro(_msg, info) -> None:
@@ -32,16 +33,28 @@ def test_info_gaps_equal_the_recorder_counts_across_a_gateway_restart(tmp_path):
             gyro_by_publisher[info.publisher_id] += 1
             cv.notify_all()
 
-    def wait_publishers(n: int) -> None:  # n gateways have each published 1000 gyro samples
+    def on_recorder(msg, _info) -> None:
         with cv:
-            assert cv.wait_for(lambda: sum(c >= 1000 for c in gyro_by_publisher.values()) >= n, 120), up.log_tail()
+            recorded[0] = msg.topics["device/gyro"].received if "device/gyro" in msg.topics else 0
+            cv.notify_all()
+
+    def wait_for(what: str, pred) -> None:
+        with cv:
+            assert cv.wait_for(pred, 120), (what, dict(gyro_by_publisher), recorded[0], up.log_tail())
+
+    def publishers(n: int) -> bool:  # n gateways have each published 1000 gyro samples
+        return sum(c >= 1000 for c in gyro_by_publisher.values()) >= n
 
     with UpRun(tmp_path, SERVICES, config) as up:
         up.bus.subscribe("device/gyro", on_gyro)
-        wait_publishers(1)
+        up.bus.subscribe("recorder/status", on_recorder)
+        # the recorder starts on its own: on a loaded machine the first gateway's samples may all
+        # be sent before it subscribes, so the kill waits until it has recorded some of them
+        wait_for("first gateway recorded", lambda: publishers(1) and recorded[0] >= 500)
+        at_kill = recorded[0]
         st = up.latest_status()
         os.kill(up.run_of(st, "sensor_gateway").pid, signal.SIGKILL)
-        wait_publishers(2)
+        wait_for("second gateway recorded", lambda: publishers(2) and recorded[0] >= at_kill + 500)
         assert up.stop() == 0
     (path,) = up.recordings()
     info = inspect(path)
