@@ -18,6 +18,7 @@ from pathlib import Path
 import httpx
 import pytest
 import yaml
+from websockets.sync.client import connect
 
 from tests.conftest import ROOT, free_port
 from tests.services.dashboard.live_system import OPERATOR_TOKEN, VIEWER_TOKEN
@@ -168,10 +169,28 @@ def test_hostile_clients_get_no_5xx_the_never_reading_one_is_dropped_and_memory_
     pid = system.procs["dashboard"].pid
     statuses: list[tuple[str, int]] = []
     auth = {"Authorization": f"Bearer {OPERATOR_TOKEN}"}
+    pub = system.bus.publisher("fusion/state")
+    k = 0
+
+    def publish_states(n: int) -> None:
+        nonlocal k
+        for _ in range(n):
+            st = fusion_pb2.FusionState(depth_mm=140.0, tilt_deg=4.0)
+            st.header.stamp_ns = 1_000_000 + k
+            k += 1
+            pub.put(st)
+
     with httpx.Client(base_url=system.url, headers=auth, timeout=30) as c:
         for _ in range(20):  # warm: the routes, the recorder client, the JSON encoders
             c.get("/api/status")
             c.post("/api/recorder/mark", json={"label": "x"})
+        # ... and the websocket's code and buffers: a client that reads batches while states stream
+        with connect(
+            f"ws://127.0.0.1:{system.port}/ws", additional_headers={"Authorization": f"Bearer {VIEWER_TOKEN}"}
+        ) as ws:
+            for _ in range(10):
+                publish_states(200)
+                ws.recv(timeout=30)
         baseline = _rss_kib(pid)
         for path in ("/api/recorder/start", "/api/recorder/stop", "/api/recorder/mark", "/login"):
             for body in MALFORMED:
@@ -196,19 +215,13 @@ def test_hostile_clients_get_no_5xx_the_never_reading_one_is_dropped_and_memory_
         assert r.status_code == 413
 
         # A websocket client that never reads while states stream: dropped, and counted.
-        pub = system.bus.publisher("fusion/state")
         reader = _never_reading_websocket(system.port)
         try:
             # a bound on a hang, not a speed: the socket buffers to fill before the send times
             # out fill slower on a loaded machine (four suite workers on two cores)
             deadline = time.monotonic() + 180
-            k = 0
             while True:
-                for _ in range(200):
-                    st = fusion_pb2.FusionState(depth_mm=140.0, tilt_deg=4.0)
-                    st.header.stamp_ns = 1_000_000 + k
-                    k += 1
-                    pub.put(st)
+                publish_states(200)
                 ws = c.get("/api/status").json()["websocket"]
                 if ws["dropped_slow"] >= 1:
                     break
@@ -226,4 +239,7 @@ def test_hostile_clients_get_no_5xx_the_never_reading_one_is_dropped_and_memory_
     server_errors = [(what, code) for what, code in statuses if code >= 500]
     assert not server_errors, server_errors
     assert {code for _, code in statuses} <= {200, 303, 400, 401, 404, 413, 422}, sorted({code for _, code in statuses})
-    assert after <= baseline * 1.10, f"dashboard RSS {after} KiB after, {baseline} KiB before"
+    # The allocator keeps up to about 10 MB of a dropped client's send buffers (20 drops in a row
+    # on one dashboard: 91-97 MB over an 88 MB baseline, no trend). What this bound catches is a
+    # refused body read or kept (50 MB, 20 MB), or a dropped client kept with its queue.
+    assert after <= baseline + 16 * 1024, f"dashboard RSS {after} KiB after, {baseline} KiB before"
