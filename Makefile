@@ -17,10 +17,18 @@ $(STAMP): pyproject.toml
 # cache at install, not at the first start or run, where they take 40-90 s on two cores
 # (services/fusion/live/warmup.py). numba keys its cache on each kernel file's modification time;
 # this target re-runs when a file of the filter's core or the attitude filter changes.
+# The tracking filter's and the attitude filter's are two processes, so that `make -j2` compiles
+# them side by side.
 KERNELS := $(VENV)/.kernels-ready
-$(KERNELS): $(STAMP) $(wildcard services/fusion/eskf/*.py services/fusion/eskf/kernels/*.py services/fusion/eskf/models/*.py) \
-		services/fusion/attitude/filter.py
-	$(PY) -m services.fusion.live.warmup
+KERNELS_FUSION := $(VENV)/.kernels-fusion
+KERNELS_ATTITUDE := $(VENV)/.kernels-attitude
+$(KERNELS_FUSION): $(STAMP) $(wildcard services/fusion/eskf/*.py services/fusion/eskf/kernels/*.py services/fusion/eskf/models/*.py)
+	$(PY) -m services.fusion.live.warmup --only fusion
+	touch $@
+$(KERNELS_ATTITUDE): $(STAMP) services/fusion/attitude/filter.py services/fusion/attitude/offline.py
+	$(PY) -m services.fusion.live.warmup --only attitude
+	touch $@
+$(KERNELS): $(KERNELS_FUSION) $(KERNELS_ATTITUDE)
 	touch $@
 
 install: $(STAMP) $(KERNELS)

@@ -201,35 +201,60 @@ def warm_up(calib: Calibration, params: Params | None = None, sensors: frozenset
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m services.fusion.live.warmup", description=__doc__.split("\n\n")[0])
     ap.add_argument("calibration", nargs="?", help="calibration file (default: the bench's nominal calibration)")
+    ap.add_argument(
+        "--only",
+        choices=("fusion", "attitude"),
+        help="only the tracking filter's kernels (the live service and the offline run with its smoother) "
+        "or only `tiplog fusion attitude`'s; default both (two processes can fill the cache side by side)",
+    )
     args = ap.parse_args(argv)
-    try:
-        if args.calibration:
-            calib = Calibration.load_yaml(args.calibration)
-        else:
-            from services.bench.scenario import load_scenario
-            from services.bench.simulation import as_calibrated_constants
+    if args.only != "attitude":
+        try:
+            if args.calibration:
+                calib = Calibration.load_yaml(args.calibration)
+            else:
+                from services.bench.scenario import load_scenario
+                from services.bench.simulation import as_calibrated_constants
 
-            calib = Calibration.from_dict(as_calibrated_constants(load_scenario("teleop"), 0).to_dict(), "bench")
-        line = cold_start_line()
-        if line:
-            print(line, flush=True)
-        diag = warm_up(calib)
-    except (CalibrationError, ValueError) as e:
-        print(f"warmup: {e}", file=sys.stderr)
-        return 2
-    print(f"fusion kernels {'compiled' if line else 'ready'} in {diag['warm_up_s']:.1f} s")
-    print(f"attitude kernel ready in {warm_up_attitude():.1f} s")
+                calib = Calibration.from_dict(as_calibrated_constants(load_scenario("teleop"), 0).to_dict(), "bench")
+            line = cold_start_line()
+            if line:
+                print(line, flush=True)
+            diag = warm_up(calib)
+            smoother_s = warm_up_smoother(calib)
+        except (CalibrationError, ValueError) as e:
+            print(f"warmup: {e}", file=sys.stderr)
+            return 2
+        print(
+            f"fusion kernels {'compiled' if line else 'ready'} in {diag['warm_up_s']:.1f} s, the smoother's in {smoother_s:.1f} s"
+        )
+    if args.only != "fusion":
+        print(f"attitude kernels ready in {warm_up_attitude():.1f} s")
     return 0
 
 
+def warm_up_smoother(calib: Calibration) -> float:
+    """The offline run's smoother (`tiplog fusion run --smooth`) over `synthetic_inputs`: its
+    transition kernel is the only one the live filter does not use; seconds taken."""
+    from services.fusion.offline.smoother import smooth
+
+    t0 = time.perf_counter()
+    smooth(calib, Params(), synthetic_inputs(calib))
+    return time.perf_counter() - t0
+
+
 def warm_up_attitude() -> float:
-    """`tiplog fusion attitude`'s compiled kernel into numba's cache too (it is not the live
-    service's, but a cold one compiles for tens of seconds inside a user's first run); seconds taken."""
+    """`tiplog fusion attitude`'s compiled kernels (the online filter's and the offline smoother's)
+    into numba's cache too (they are not the live service's, but cold ones compile for tens of
+    seconds inside a user's first run); seconds taken."""
     from services.fusion.attitude.filter import estimate
+    from services.fusion.attitude.offline import smooth
 
     t0 = time.perf_counter()
     t = np.arange(200) / 200.0
-    estimate(t, np.zeros((200, 3)), np.tile([0.0, 0.0, G], (200, 1)))
+    gyr, acc = np.zeros((200, 3)), np.tile([0.0, 0.0, G], (200, 1))
+    estimate(t, gyr, acc)
+    smooth(t, gyr, acc)
     return time.perf_counter() - t0
 
 

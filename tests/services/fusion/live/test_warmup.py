@@ -131,6 +131,17 @@ def test_the_command_fills_the_cache_or_says_why_not(tmp_path):
     )
     assert ok.returncode == 0, ok.stderr
     assert "fusion kernels ready in" in ok.stdout or "fusion kernels compiled in" in ok.stdout
+    assert "the smoother's in" in ok.stdout and "attitude kernels ready in" in ok.stdout, ok.stdout
+    # `make` runs the two halves as two processes, side by side
+    attitude = subprocess.run(
+        [sys.executable, "-m", "services.fusion.live.warmup", "--only", "attitude"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert attitude.returncode == 0, attitude.stderr
+    assert "attitude kernels ready in" in attitude.stdout and "fusion kernels" not in attitude.stdout
 
 
 def test_a_start_with_no_compiled_cache_says_so_first(tmp_path):
