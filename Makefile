@@ -9,8 +9,9 @@ STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 # Bytecode is written at each module's first import, not by pip for every file of every dependency
 # at install: the system and its tests import about a fifth of their 11,000 files, and compiling
 # them all took 26 of the install's 65 s on two cores. So make's commands write it whatever
-# PYTHONDONTWRITEBYTECODE says; where that is set, nothing would ever be compiled, and each process
-# would compile what it imports again.
+# PYTHONDONTWRITEBYTECODE says (where that is set, nothing would ever be compiled, and each process
+# would compile what it imports again), and the install imports every module of ours once
+# (BYTECODE, below), so that a command started by hand where it is set finds them compiled too.
 unexport PYTHONDONTWRITEBYTECODE
 
 $(STAMP): pyproject.toml
@@ -38,7 +39,14 @@ $(KERNELS_ATTITUDE): $(STAMP) services/fusion/attitude/filter.py services/fusion
 $(KERNELS): $(KERNELS_FUSION) $(KERNELS_ATTITUDE)
 	touch $@
 
-install: $(STAMP) $(KERNELS)
+# The bytecode of every module the system imports, written once the dependencies are installed
+# (pip compiles none of them: above); also a check that every module of ours imports.
+BYTECODE := $(VENV)/.bytecode-ready
+$(BYTECODE): $(STAMP)
+	$(PY) scripts/import_all.py
+	touch $@
+
+install: $(STAMP) $(KERNELS) $(BYTECODE)
 
 # Debian's Chromium for the browser tests (never a downloaded browser build).
 browser:
@@ -48,7 +56,7 @@ browser:
 compose:
 	bash scripts/install-debian.sh docker-compose docker-compose "the compose check"
 
-demo: $(STAMP) $(KERNELS)
+demo: $(STAMP) $(KERNELS) $(BYTECODE)
 	$(VENV)/bin/tiplog up -c config/demo.yaml
 
 # The TypeScript MCAP reader (@mcap/core) for the recorder's interoperability test; pinned by
@@ -69,7 +77,7 @@ TEST_WORKERS ?= 4
 # suite again to pick them out takes 10 s).
 REALTIME_FILES = $(shell grep -rl 'mark\.realtime' tests --include='test_*.py')
 test: $(STAMP) browser compose $(MCAP_NODE)/node_modules/.installed
-	$(MAKE) --no-print-directory -j2 $(KERNELS) rewritten-tests
+	$(MAKE) --no-print-directory -j2 $(KERNELS) $(BYTECODE) rewritten-tests
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not realtime"
 	$(PY) -m pytest -q -m realtime $(REALTIME_FILES)
 
