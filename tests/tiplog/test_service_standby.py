@@ -42,4 +42,3 @@ def test_a_stop_ends_it_while_nothing_comes(monkeypatch):
     finally:
         os.close(w)  # the reader thread sees end of file and lets go of the file
         monkeypatch.undo()
-
