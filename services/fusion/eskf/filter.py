@@ -148,6 +148,7 @@ class TrackingFilter:
         self._adapt_tau_s = p.noise_adapt_tau_s
         self._adapt_max = p.noise_adapt_max
         self._adapt_dt_max_s = p.noise_adapt_step_max_ms * 1e-3
+        self._tip_power = p.noise_adapt_tip_power
         self._grav_k = np.empty(GR_SIZE)
         self._grav_k[GR_SIGMA] = p.gravity_sigma_deg * DEG
         self._grav_k[GR_SIGMA_PER_EXCESS] = p.gravity_sigma_per_excess * DEG
@@ -446,6 +447,16 @@ class TrackingFilter:
             row[2] = 0.0
             _bump(s.counts, f"returned:{name}")
 
+    @staticmethod
+    def _nis(P: np.ndarray, H: np.ndarray, y: np.ndarray, r_var: float) -> float:
+        """y^T (H P H^T + r_var I)^-1 y, P left as it is."""
+        S = H @ P @ H.T
+        S[np.diag_indices_from(S)] += r_var
+        try:
+            return float(y @ np.linalg.solve(S, y))
+        except np.linalg.LinAlgError:
+            return math.inf
+
     def _apply(self, s: State, name: str, nis: float, dx: np.ndarray) -> None:
         _bump(s.counts, f"updates:{name}")
         _bump(s.nis, name, nis)
@@ -465,18 +476,22 @@ class TrackingFilter:
         (without the IMU, or after a gross error got in) is never left to vision's gate alone."""
         prm = self.prm
         row = s.noise[ADAPTIVE["vision_tip"]]
-        r_var = np.full(2, self.ray_var * row[0])
+        lam = row[0]
+        weigh = lam**self._tip_power if lam > 1.0 else lam
+        r_var = np.full(2, self.ray_var * weigh)
+        # the factor follows the NIS under lambda R, whatever the tip is weighed with
+        nis_lam = self._nis(s.P, H, y, self.ray_var * lam) if weigh != lam else None
         held, s.tip_held = s.tip_held, None
         gate = prm.gate_chi2_2
         if row[2] != 0.0:  # set aside: watched only
             status, nis, _ = update(s.P, H, y, r_var, -1.0, *self._gain(s))
-            self._adapt(s, "vision_tip", nis, 2, gate)
+            self._adapt(s, "vision_tip", nis if nis_lam is None else nis_lam, 2, gate)
             _bump(s.counts, "rejected:vision_tip:set_aside")
             return False
         # switched off (0) or at the gate, nothing passes the gate and fails the confirmation
         confirm = prm.tip_confirm_chi2 if 0.0 < prm.tip_confirm_chi2 < gate else gate
         status, nis, dx = update(s.P, H, y, r_var, confirm, *self._gain(s))
-        self._adapt(s, "vision_tip", nis, 2, gate)
+        self._adapt(s, "vision_tip", nis if nis_lam is None else nis_lam, 2, gate)
         if status == 0:
             if held is not None:
                 _bump(s.counts, "rejected:vision_tip:unconfirmed")

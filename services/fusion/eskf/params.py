@@ -233,6 +233,9 @@ class Params:
     """The factor's ceiling; at it the stream is set aside until the factor halves."""
     noise_adapt_step_max_ms: float = 200.0
     """One innovation moves the factor by at most this much time's worth."""
+    noise_adapt_tip_power: float = 3.0
+    """The vision tip is weighed with its factor to this power: its innovations show the junction's white excess,
+    not the pose-locked part the state follows, which grows with it (blur, smoke, distance)."""
     gate_chi2_1: float = 10.83
     """Innovation gate, 1 degree of freedom (99.9 %)."""
     gate_chi2_2: float = 13.82
@@ -281,6 +284,10 @@ class Params:
                 raise ParamsError(f"fusion parameter {f.name}: must be a finite number (got {v!r})")
             if v < 0:
                 raise ParamsError(f"fusion parameter {f.name}: must be >= 0 (got {v})")
+        if self.noise_adapt_tip_power < 1.0:
+            raise ParamsError(
+                f"fusion parameter noise_adapt_tip_power: must be >= 1 (got {self.noise_adapt_tip_power})"
+            )
         if self.noise_adapt_max < 1.0:
             raise ParamsError(f"fusion parameter noise_adapt_max: must be >= 1 (got {self.noise_adapt_max})")
         for name in ("rcm_every", "alpha_window"):  # gravity_every may be 0: no gravity updates

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from services.fusion.eskf.filter import ADAPTIVE, TrackingFilter
 from services.fusion.eskf.params import Params
@@ -100,3 +101,34 @@ def test_the_noise_factors_reach_the_diagnostics_and_survive_a_reset():
     r._carry_noise(fresh)
     assert fresh.noise[ADAPTIVE["vision_axis"], 0] == s.noise[ADAPTIVE["vision_axis"], 0]
     assert np.isnan(fresh.noise[:, 1]).all()
+
+
+def _tip_step(power: float, factor: float):
+    """One vision frame whose junction lies 2 mm deeper than a settled state's, with the tip's
+    factor set to `factor`: the state before, and after it under `noise_adapt_tip_power`."""
+    f, s, R, p = _static(3.0, Params().vision_plane_sigma_deg)
+    f = TrackingFilter(f.c, Params(noise_adapt_tip_power=power))
+    s.noise[ADAPTIVE["vision_tip"], 0] = factor
+    after = s.copy()
+    after.t_ns += 66_000_000
+    f.propagate(after, after.t_ns)
+    f.update_vision(after, _obs(f.c, R, p + 0.002 * R[:, 2]))  # the shaft along itself: the planes as before
+    return s, after, R
+
+
+def test_the_tip_is_weighed_with_its_factor_to_a_power_and_its_factor_learns_as_before():
+    i = ADAPTIVE["vision_tip"]
+    s, one, R = _tip_step(1.0, 4.0)
+    _, three, _ = _tip_step(3.0, 4.0)
+    n = s.counts["updates:vision_tip"]
+    assert one.counts["updates:vision_tip"] == three.counts["updates:vision_tip"] == n + 1
+    moved_one = (one.p - s.p) @ R[:, 2]
+    moved_three = (three.p - s.p) @ R[:, 2]
+    assert 0.0 < moved_three < 0.5 * moved_one  # 64 instead of 4 times the tip's variance
+    # the factor follows the NIS under 4 R in both: the power changes the weight, not what is learnt
+    assert three.noise[i, 0] == pytest.approx(one.noise[i, 0], rel=1e-9)
+    assert one.noise[i, 0] != 4.0
+    # a tip as noisy as assumed (factor 1): the power changes nothing
+    _, a, _ = _tip_step(1.0, 1.0)
+    _, b, _ = _tip_step(3.0, 1.0)
+    assert np.array_equal(a.p, b.p) and np.array_equal(a.P, b.P)
