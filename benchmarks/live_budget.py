@@ -5,7 +5,8 @@ fusion never behind the gyro, the display fresh, vision useful, nothing reset by
     python -m benchmarks.live_budget --startup-only [--fresh]      # time to the first estimate
 
 The configuration is `config/demo.yaml` (pixel tier, every service) with its ports, device link
-and recording folder moved to free ones. `--load` adds a process that keeps one core busy (a
+and recording folder moved to free ones, and the calibration `make demo` makes and uses (a bench
+fit block through `tiplog calibrate block`) where it exists. `--load` adds a process that keeps one core busy (a
 spinning loop at normal priority, standing for what else a cart runs). Per second after the
 first state, each figure on the clock of the process that made it (one host clock), so that this
 process's own delays never read as the system's: device/gyro samples arriving at the gateway;
@@ -54,6 +55,7 @@ TARGETS = {
     "vision_latency_p95_ms": 250.0,
     "nis_factor": 2.0,  # vision-axis NIS mean within this factor of its nominal
 }
+DEMO_CALIBRATION = ROOT / "build" / "demo" / "calibration.yaml"  # `make demo`'s (Makefile: DEMO_CAL)
 NIS_NOMINAL = 4.0  # the vision axis is a 4-row update (two planes' directions and offsets): chi-square(4)
 SPIN = "while True:\n    pass\n"
 
@@ -124,7 +126,13 @@ def _websocket(url: str, acc: Seconds, stop: threading.Event) -> None:
 
 
 def run(
-    seconds: float, load: bool, fresh: bool, startup_only: bool, keep: str | None = None, sets: list[str] = ()
+    seconds: float,
+    load: bool,
+    fresh: bool,
+    startup_only: bool,
+    keep: str | None = None,
+    sets: list[str] = (),
+    calibration: str | None = None,
 ) -> dict:
     spin = subprocess.Popen([sys.executable, "-c", SPIN]) if load else None
     try:
@@ -138,7 +146,12 @@ def run(
             env = {}
             if fresh:
                 env["NUMBA_CACHE_DIR"] = str(tmp / "numba-cache")
-            r = _measure(tmp, cfg, env, seconds, startup_only) | {"load": load, "fresh": fresh}
+            args = ["--calibration", calibration] if calibration else []
+            r = _measure(tmp, cfg, env, seconds, startup_only, args) | {
+                "load": load,
+                "fresh": fresh,
+                "calibration": calibration or "the bench's as-calibrated constants",
+            }
             if keep:
                 Path(keep).mkdir(parents=True, exist_ok=True)
                 for f in sorted((tmp / "rec").glob("*.mcap")):
@@ -150,12 +163,12 @@ def run(
             spin.wait(10)
 
 
-def _measure(tmp: Path, cfg: dict, env: dict, seconds: float, startup_only: bool) -> dict:
+def _measure(tmp: Path, cfg: dict, env: dict, seconds: float, startup_only: bool, args: list[str]) -> dict:
     acc = Seconds()
     last: dict[str, object] = {}
     t_up = now_ns()
     stop = threading.Event()
-    with UpRun(tmp, SERVICES, cfg, extra_env=env) as up:
+    with UpRun(tmp, SERVICES, cfg, extra_env=env, extra_args=args) as up:
         bus = up.bus
         assert bus is not None
 
@@ -399,6 +412,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--log", metavar="FILE", help="copy tiplog up's log up to the first state to this file")
     ap.add_argument("--keep", metavar="DIR", help="move the run's recording into this folder")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="configuration override")
+    ap.add_argument(
+        "--calibration",
+        metavar="FILE",
+        default=str(DEMO_CALIBRATION) if DEMO_CALIBRATION.exists() else None,
+        help=f"tiplog up's calibration file (default: {DEMO_CALIBRATION.relative_to(ROOT)}, `make demo`'s, where it "
+        "exists; else the bench's as-calibrated constants)",
+    )
     a = ap.parse_args(argv)
     if not a.seconds > 0:
         ap.exit(2, f"live_budget: --seconds must be above 0 (got {a.seconds:g})\n")
@@ -411,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.log:
         _LOG.append(a.log)
     try:
-        r = run(a.seconds, a.load, a.fresh, a.startup_only, a.keep, a.set)
+        r = run(a.seconds, a.load, a.fresh, a.startup_only, a.keep, a.set, a.calibration)
     except (RuntimeError, TimeoutError) as e:  # the system did not come up or stopped: no figures
         print(f"live_budget: {e}", file=sys.stderr)
         return 1

@@ -44,7 +44,14 @@ def system_config(tmp: Path, *, tier: str = "measurement", seed: int = 1, scenar
 class UpRun:
     """`tiplog up` running in a subprocess; use as a context manager (stops it on exit)."""
 
-    def __init__(self, tmp: Path, services: list[str], config: dict | None = None, extra_env: dict | None = None):
+    def __init__(
+        self,
+        tmp: Path,
+        services: list[str],
+        config: dict | None = None,
+        extra_env: dict | None = None,
+        extra_args: list[str] | None = None,
+    ):
         self.tmp = tmp
         self.config = config if config is not None else system_config(tmp)
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -55,6 +62,7 @@ class UpRun:
         self.stdout_path = tmp / "up.out"
         self.stderr_path = tmp / "up.err"
         self.extra_env = extra_env or {}
+        self.extra_args = extra_args or []
         self.proc: subprocess.Popen | None = None
         self.bus: Bus | None = None
 
@@ -71,7 +79,7 @@ class UpRun:
             **self.extra_env,
         }
         cmd = [sys.executable, "-m", "tiplog.cli", "up", "--listen", self.endpoint, "-c", str(cfg)]
-        cmd += ["--services", ",".join(self.services)]
+        cmd += ["--services", ",".join(self.services), *self.extra_args]
         # its own process group, as a shell gives a foreground job: Ctrl-C reaches the group
         self.proc = subprocess.Popen(
             cmd,
