@@ -65,7 +65,8 @@ DEMO_CAL := build/demo/calibration.yaml
 $(DEMO_CAL): $(STAMP) $(wildcard services/bench/*.py services/bench/sensors/*.py services/bench/robot/*.py tiplog/calibration/*.py tiplog/calibration/fits/*.py)
 	mkdir -p $(dir $@)
 	$(VENV)/bin/tiplog sim generate --scenario fit --seed 1 --out $(dir $@)fit.mcap --force --quiet
-	$(VENV)/bin/tiplog calibrate block $(dir $@)fit.mcap --out $@ --force
+	$(VENV)/bin/tiplog calibrate block $(dir $@)fit.mcap --out $@ --force > $(dir $@)calibrate.log
+	@echo "demo calibration: $@ (the block's figures: $(dir $@)calibrate.log)"
 
 demo: $(STAMP) $(KERNELS) $(BYTECODE) $(DEMO_CAL)
 	$(VENV)/bin/tiplog up -c config/demo.yaml --calibration $(DEMO_CAL)
