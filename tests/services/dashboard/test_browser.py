@@ -46,7 +46,7 @@ def test_numbers_match_the_published_state_and_screenshot(browser, system, artif
                 timeout=15_000,
             )
             page.wait_for_function(
-                "d => document.getElementById('v-depth').textContent === d", arg=f"{last.depth_mm:.2f}", timeout=5_000
+                "d => document.getElementById('v-depth').textContent === d", arg=f"{last.depth_mm:.2f}", timeout=30_000
             )
             shown = {
                 k: page.text_content(f"#{k}")
@@ -64,7 +64,7 @@ def test_numbers_match_the_published_state_and_screenshot(browser, system, artif
             assert page.text_content("#lock") == lock_text(last)
             # The error panel against the robot: the stand-in's wobble is at most ~1.5 mm. (The
             # newest state may still lack its bracketing robot samples: the RMS is checked.)
-            page.wait_for_function("document.getElementById('e-count').textContent !== '0'", timeout=5_000)
+            page.wait_for_function("document.getElementById('e-count').textContent !== '0'", timeout=30_000)
             assert 0.0 < float(page.text_content("#e-rms")) < 1.6
             # None dropped: every state published since the first one the page holds reached it
             # (the dashboard may have joined the bus after the stand-in's first states).
@@ -77,7 +77,7 @@ def test_numbers_match_the_published_state_and_screenshot(browser, system, artif
             ]
         finally:
             system.fusion.resume()
-        page.wait_for_function("() => document.querySelector('#health tbody tr') !== null", timeout=5_000)
+        page.wait_for_function("() => document.querySelector('#health tbody tr') !== null", timeout=30_000)
         health = dict(
             zip(
                 page.locator("#health tbody td:nth-child(1)").all_text_contents(),
