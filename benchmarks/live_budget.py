@@ -6,17 +6,17 @@ fusion never behind the gyro, the display fresh, vision useful, nothing reset by
 
 The configuration is `config/demo.yaml` (pixel tier, every service) with its ports, device link
 and recording folder moved to free ones, and the calibration `make demo` makes and uses (a bench
-fit block through `tiplog calibrate block`) where it exists. `--load` adds a process that keeps one core busy (a
-spinning loop at normal priority, standing for what else a cart runs). Per second after the
-first state, each figure on the clock of the process that made it (one host clock), so that this
-process's own delays never read as the system's: device/gyro samples arriving at the gateway;
-fusion/state published (stamp + lag_ms) and fusion's own lag (lag_ms, p95); display lag (a
-state's stamp to the dashboard's websocket message carrying it leaving, `sent_ns`, p95, as the
-page gets it); vision observations finished per second and their latency (capture stamp to
-vision's processed stamp, p95); camera frames dropped as stale by vision (vision/status); frames
-the pixel tier skipped late and its rate (bench/status); fusion's re-acquisitions, resets and
-vision-axis NIS (fusion/diagnostics); each service's CPU share. At the end the targets are
-checked.
+fit block through `tiplog calibrate block`) where it exists. `--load` adds a process that keeps
+one core busy (a spinning loop at normal priority, standing for what else a cart runs). Per
+second after the first state, each figure on the clock of the process that made it (one host
+clock), so that this process's own delays never read as the system's: device/gyro samples
+arriving at the gateway; fusion/state published (stamp + lag_ms) and fusion's own lag (lag_ms,
+p95); display lag (a state's stamp to the dashboard's websocket message carrying it leaving,
+`sent_ns`, p95, as the page gets it); vision observations finished per second and their latency
+(capture stamp to vision's processed stamp, p95); camera frames dropped as stale by vision
+(vision/status); frames the pixel tier skipped late and its rate (bench/status); fusion's
+re-acquisitions, resets and vision-axis NIS (fusion/diagnostics); each service's CPU share. At
+the end the targets are checked.
 
 Start-up: seconds from `tiplog up` starting to the first fusion/state on the bus and to the
 first state in a websocket batch (what the page draws). `--fresh` starts with empty caches (an

@@ -447,16 +447,6 @@ class TrackingFilter:
             row[2] = 0.0
             _bump(s.counts, f"returned:{name}")
 
-    @staticmethod
-    def _nis(P: np.ndarray, H: np.ndarray, y: np.ndarray, r_var: float) -> float:
-        """y^T (H P H^T + r_var I)^-1 y, P left as it is."""
-        S = H @ P @ H.T
-        S[np.diag_indices_from(S)] += r_var
-        try:
-            return float(y @ np.linalg.solve(S, y))
-        except np.linalg.LinAlgError:
-            return math.inf
-
     def _apply(self, s: State, name: str, nis: float, dx: np.ndarray) -> None:
         _bump(s.counts, f"updates:{name}")
         _bump(s.nis, name, nis)
@@ -479,8 +469,9 @@ class TrackingFilter:
         lam = row[0]
         weigh = lam**self._tip_power if lam > 1.0 else lam
         r_var = np.full(2, self.ray_var * weigh)
-        # the factor follows the NIS under lambda R, whatever the tip is weighed with
-        nis_lam = self._nis(s.P, H, y, self.ray_var * lam) if weigh != lam else None
+        # the factor follows the NIS under lambda R, whatever the tip is weighed with (the
+        # kernel at a negative gate only measures it, as for a stream set aside)
+        nis_lam = update(s.P, H, y, np.full(2, self.ray_var * lam), -1.0, 0, N)[1] if weigh != lam else None
         held, s.tip_held = s.tip_held, None
         gate = prm.gate_chi2_2
         if row[2] != 0.0:  # set aside: watched only
