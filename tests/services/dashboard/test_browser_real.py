@@ -87,15 +87,15 @@ def test_numbers_are_a_published_state_of_live_fusion(browser, real_system, arti
         assert lock == lock_text(st)
         n0 = page.evaluate("window.tiplog.est.n")
         page.wait_for_function("n => window.tiplog.est.n >= n + 400", arg=n0, timeout=20_000)
-        page.wait_for_function("document.getElementById('e-count').textContent !== '0'", timeout=10_000)
+        page.wait_for_function("document.getElementById('e-count').textContent !== '0'", timeout=30_000)
         assert float(page.text_content("#e-rms")) >= 0.0  # shown as a number against the robot
-        page.wait_for_function("() => document.querySelector('#diagnostics tbody td') !== null", timeout=10_000)
+        page.wait_for_function("() => document.querySelector('#diagnostics tbody td') !== null", timeout=30_000)
         assert page.text_content("#diagnostics tbody tr:first-child td:nth-child(2)") == "full"
         # The present, from fusion/predicted, drawn as a ring beside the held-back estimate.
-        page.wait_for_function("Array.isArray(window.tiplog.predicted)", timeout=10_000)
+        page.wait_for_function("Array.isArray(window.tiplog.predicted)", timeout=30_000)
         assert len(page.evaluate("window.tiplog.predicted")) == 3
         # The device's own smoothed ToF range, a number and not 0.00 (a field fusion never filled).
-        page.wait_for_function("parseFloat(document.getElementById('v-tof-smoothed').textContent) > 0", timeout=10_000)
+        page.wait_for_function("parseFloat(document.getElementById('v-tof-smoothed').textContent) > 0", timeout=30_000)
         # No line on the trail is longer than the tip could travel between its two states
         # (2 m/s plus 2 mm): where the state jumped (a reset, a re-acquisition) it breaks.
         longest = page.evaluate(
