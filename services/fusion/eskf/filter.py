@@ -300,6 +300,26 @@ class TrackingFilter:
         s.last_tip_ns = s.last_vision_ns = int(t_ns)
         return s
 
+    def start_from_vision(
+        self, t_ns: int, obs: VisionObservation, f_imu: np.ndarray | None, tof: tuple[int, float] | None, refused: int
+    ) -> tuple[State | None, int]:
+        """`init_from_vision`, but a start whose junction depth the latest ToF range (b_rho taken
+        as zero) puts further than `vision_tip_tof_gate_mm` away is refused, as a tip would be:
+        one frame's shaft can be degrees off where its junction ray nearly meets the trocar in the
+        image, and a start that far off diverges before vision can correct it. After
+        `reset_after_vision_rejections` refusals in a row the ToF is not believed and the frame
+        starts. Returns (the state or None, the refusals in a row so far)."""
+        cand = self.init_from_vision(t_ns, obs, f_imu)
+        if cand is None:
+            return None, refused
+        if tof is not None and refused < self.prm.reset_after_vision_rejections:
+            cand.tof_last = tof
+            far = self._tip_disagrees_with_tof(cand, self.A @ cand.R[:, 2], obs.ray)
+            cand.tof_last = (-(1 << 62), 0.0)
+            if far:
+                return None, refused + 1
+        return cand, 0
+
     # ------------------------------------------------------------------ propagation
     def propagate(self, s: State, t_ns: int) -> None:
         """Nominal state and covariance forward to t_ns with the latest gyro/accel samples held."""
@@ -634,24 +654,24 @@ class TrackingFilter:
         r_var = np.array([var * prm.depth_anchor_tau_s / dt_s])
         self._update(s, H, y, r_var, math.inf, "depth_anchor")
 
-    def _tip_disagrees_with_tof(self, s: State, u_c: np.ndarray, d: np.ndarray) -> bool:
-        """Whether the depth the junction ray implies on the present shaft line is further than
-        `vision_tip_tof_gate_mm` from the depth of the latest ToF range (only while b_rho is
-        free, so current). The labeler's gross junction errors (a wrong end of the shaft, 5-25
-        mm) pass the chi-square gate when the depth has grown uncertain between frames; the
-        ToF is the independent depth that tells them apart."""
+    def _tip_disagrees_with_tof(self, s: State, u_c: np.ndarray, d: np.ndarray, R: np.ndarray | None = None) -> bool:
+        """Whether the depth the junction ray implies on the present shaft line (or on the shaft
+        at attitude R: a candidate pose) is further than `vision_tip_tof_gate_mm` from the depth
+        of the latest ToF range (only while b_rho is free, so current). The labeler's gross
+        junction errors (a wrong end of the shaft, 5-25 mm) pass the chi-square gate when the
+        depth has grown uncertain between frames; the ToF is the independent depth that tells
+        them apart."""
         gate = self.prm.vision_tip_tof_gate_mm * 1e-3
         if gate <= 0 or not self.tof or not self.brho_free(s) or s.t_ns - s.tof_last[0] > self._tof_fresh_ns:
             return False
         c = self.c
         m = c.tof_plane_normal_base
-        u = s.R[:, 2]
-        mu, mb = float(m @ u), float(m @ (s.R @ c.tof_beam_tool))
+        R = s.R if R is None else R
+        u = R[:, 2]
+        mu, mb = float(m @ u), float(m @ (R @ c.tof_beam_tool))
         if abs(mu) < 0.2 or abs(mb) < 0.05:
             return False
-        L_tof = (
-            c.tof_plane_h_m - float(m @ (self.rcm + s.R @ c.tof_origin_tool_m)) - (s.tof_last[1] - s.brho) * mb
-        ) / mu
+        L_tof = (c.tof_plane_h_m - float(m @ (self.rcm + R @ c.tof_origin_tool_m)) - (s.tof_last[1] - s.brho) * mb) / mu
         L_vis = closest_params(self.rcm_cam, u_c, d)[0] + self.jp
         return abs(L_vis - L_tof) > gate
 
@@ -716,6 +736,9 @@ class TrackingFilter:
             return False
         cand = self.init_from_vision(s.t_ns, obs, None)
         if cand is None:
+            return False
+        if self._tip_disagrees_with_tof(s, self.A @ cand.R[:, 2], obs.ray, cand.R):
+            _bump(s.counts, "rejected:reacquire:tof_disagrees")  # a gross junction error, not a lost state
             return False
         u, u_c = s.R[:, 2], cand.R[:, 2]
         ax = cross(u, u_c)

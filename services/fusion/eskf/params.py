@@ -209,7 +209,7 @@ class Params:
     """The tip normal to the junction's line of sight."""
     vision_tip_tof_gate_mm: float = 12.0
     """While b_rho is free, a junction whose depth is this far from the latest range's is refused: the labeler's gross
-    errors (5-25 mm)."""
+    errors (5-25 mm); so is a start or a re-acquisition from such a frame (0: off)."""
     tip_confirm_chi2: float = 2.0
     """A tip more surprising than this (NIS) waits for the next frame to agree; the tips' NIS runs far below 2, so 2 is
     a surprise; 0: off."""

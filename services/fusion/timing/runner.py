@@ -66,6 +66,8 @@ class _Track:
         "carried_nis",
         "map_mark",
         "noise",
+        "tof_last",
+        "start_refused",
     )
 
     def __init__(self) -> None:
@@ -82,6 +84,8 @@ class _Track:
         # the streams' noise factors of the state a reset discarded (`State.noise`): what a
         # stream's innovations taught is kept for the next state; None before any reset
         self.noise: np.ndarray | None = None
+        self.tof_last: tuple[int, float] | None = None  # (t_ns, range_m) of the latest range
+        self.start_refused = 0  # vision starts the ToF refused in a row (`TrackingFilter.start_from_vision`)
 
     def copy(self) -> _Track:
         t = _Track.__new__(_Track)
@@ -97,6 +101,8 @@ class _Track:
         t.carried_nis = self.carried_nis
         t.map_mark = self.map_mark
         t.noise = self.noise  # replaced at a reset, never changed in place
+        t.tof_last = self.tof_last
+        t.start_refused = self.start_refused
         return t
 
 
@@ -399,6 +405,7 @@ class FusionRunner:
             if s is not None:
                 f.on_accel(s, t, payload)
         elif kind == "tof":
+            tr.tof_last = (t, payload)
             if s is not None:  # at the state's time: at most one gyro period earlier
                 f.update_tof(s, payload)
         elif kind == "vision":
@@ -408,7 +415,11 @@ class FusionRunner:
             elif not f.imu or tr.f_last is not None:
                 # Not before the first accelerometer sample: without it the roll is unknown and
                 # gravity would be removed along the wrong axis (live, vision can come first).
-                tr.state = f.init_from_vision(t, payload, tr.f_last if f.imu else None)
+                f_imu = tr.f_last if f.imu else None
+                refused = tr.start_refused
+                tr.state, tr.start_refused = f.start_from_vision(t, payload, f_imu, tr.tof_last, refused)
+                if tr.start_refused > refused:  # counted in the diagnostics (a new Counter: snapshots share it)
+                    tr.carried = tr.carried + Counter({"rejected:start:tof_disagrees": 1})
                 if tr.state is not None:
                     self._carry_noise(tr.state)
                     tr.reset_ns = None

@@ -385,6 +385,35 @@ def test_a_junction_far_from_the_tof_depth_is_refused_while_the_offset_is_curren
     assert s.counts.get("rejected:vision_tip:tof_disagrees", 0) == 1
 
 
+def test_a_start_the_tof_puts_elsewhere_waits_for_a_frame_it_agrees_with():
+    """A first state from one frame whose junction the latest range puts 20 mm away (a gross
+    junction error, or a shaft line degrees off) is refused; a frame the range agrees with
+    starts. Without a fresh range, or after `reset_after_vision_rejections` refusals in a row
+    (a ToF that is itself off), the frame starts whatever the ToF says."""
+    c = _calib()
+    R, p = _pose()
+    u = R[:, 2]
+    f = TrackingFilter(c, Params())
+    f_true = c.R_tool_imu.T @ R.T @ (-G)
+    tof = (0, _range(c, R, p))
+    far = _obs(c, R, p + 0.02 * u)
+    t = 1_000_000
+    s, refused = f.start_from_vision(t, far, f_true, tof, 0)
+    assert s is None and refused == 1
+    s, refused = f.start_from_vision(t, _obs(c, R, p), f_true, tof, refused)
+    assert s is not None and refused == 0
+    assert np.linalg.norm(s.p - p) < 1e-4
+    assert s.tof_last[0] < 0  # the range was only looked at: the state has applied none
+    for start in (f.start_from_vision(200_000_000, far, f_true, tof, 0), f.start_from_vision(t, far, f_true, None, 0)):
+        assert start[0] is not None and float(u @ (start[0].p - p)) > 0.019
+    k = f.prm.reset_after_vision_rejections
+    assert f.start_from_vision(t, far, f_true, tof, k - 1)[1] == k
+    s, refused = f.start_from_vision(t, far, f_true, tof, k)
+    assert s is not None and refused == 0 and float(u @ (s.p - p)) > 0.019
+    off = TrackingFilter(c, Params(vision_tip_tof_gate_mm=0.0))
+    assert off.start_from_vision(t, far, f_true, tof, 0)[0] is not None
+
+
 def _depth_uncertain(f: TrackingFilter, s, mm: float):
     """The state with `mm` of depth uncertainty added (IMU only for a while, no ToF range)."""
     u = s.R[:, 2]
@@ -581,6 +610,21 @@ def test_consistent_frames_failing_the_innovation_gate_reacquire_heading():
     n0 = bad.counts.get("updates:vision_axis", 0)
     _frames(f, bad, [_obs(f.c, R, p)] * 3)
     assert bad.counts["updates:vision_axis"] == n0 + 3
+
+
+def test_frames_whose_junction_the_tof_puts_elsewhere_do_not_reacquire():
+    """Frames that agree with each other but put the tip 20 mm deeper than the latest range (a
+    gross junction error that lasts) are no lost state: they do not move the state onto them."""
+    f, s, R, p = _run_static(5.0, np.zeros(3))
+    bad = _off_heading(f, s, 6.0)
+    u = R[:, 2]
+    for _ in range(2 * f.prm.reacquire_frames):
+        f.propagate(bad, bad.t_ns + 33_000_000)
+        f.update_tof(bad, _range(f.c, R, p) + s.brho)  # the true range
+        f.update_vision(bad, _obs(f.c, R, p + 0.02 * u))
+    assert bad.counts.get("updates:reacquire", 0) == 0
+    assert bad.counts["rejected:reacquire:tof_disagrees"] >= f.prm.reacquire_frames
+    assert np.linalg.norm(bad.p - p) > 5e-3  # still where it was, 7 mm off
 
 
 def test_disagreeing_frames_do_not_reacquire():

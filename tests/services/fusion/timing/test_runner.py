@@ -12,7 +12,7 @@ import pytest
 
 from services.fusion.eskf.params import Params
 from services.fusion.live.publish import to_diagnostics
-from services.fusion.timing.runner import FusionRunner
+from services.fusion.timing.runner import ALL, FusionRunner
 from study.evaluation import interp_columns as _truth_at
 from tests.services.fusion.sessions import bench_session, inputs
 from tiplog.calibration import Calibration
@@ -187,6 +187,50 @@ def test_corrupt_and_non_finite_inputs_never_reach_the_output(session):
     assert n_bad > 10 and r.diagnostics()["corrupt"] == n_bad
     p = _arrays(out)[1]
     assert len(p) > 1000 and np.isfinite(p).all()
+
+
+def _deeper_junctions(msgs, calib, n: int, mm: float):
+    """(the inputs with the first n frames' junction rays moved `mm` deeper along the shaft their
+    own start would take, those frames' stamps)."""
+    r = FusionRunner(calib, Params())
+    f = r.filt
+    out, stamps = [], []
+    for topic, msg, arr in msgs:
+        if topic == "vision/observation" and len(stamps) < n and msg.accepted and msg.junction_visible:
+            cand = f.init_from_vision(0, r.adapter.measurement(topic, msg).value, None)
+            if cand is not None:
+                u_c = f.A @ cand.R[:, 2]
+                J = f.A @ (cand.p - f.c_cam) - f.jp * u_c + mm * 1e-3 * u_c
+                msg = copy.deepcopy(msg)
+                msg.junction_ray.x, msg.junction_ray.y, msg.junction_ray.z = J / np.linalg.norm(J)
+                stamps.append(msg.header.stamp_ns)
+        out.append((topic, msg, arr))
+    return out, stamps
+
+
+def test_a_start_waits_for_a_frame_the_tof_agrees_with(session):
+    """The runner hands the latest range to the filter's start: the session's first frames with
+    their junctions 25 mm too deep start nothing while the ToF is there; without the ToF the
+    first of them starts the filter, 25 mm off."""
+    msgs, calib, (tt, tip) = session
+    spoilt, stamps = _deeper_junctions(msgs, calib, 5, 25.0)
+    assert len(stamps) == 5
+    for sensors, first_after in ((ALL, True), (frozenset({"imu", "vision"}), False)):
+        r = FusionRunner(calib, Params(), sensors)
+        out = []
+        for topic, msg, arr in spoilt:
+            r.feed(topic, msg, arr)
+            out += r.advance(arr)
+        out += r.finish()
+        first = out[0]
+        err = np.linalg.norm(first.p_tip_base_m - _truth_at(np.array([first.stamp_ns]), tt, tip)[0])
+        refused = r.diagnostics()["rejected"].get("start:tof_disagrees", 0)
+        if first_after:
+            assert first.stamp_ns > stamps[-1] - calib.latency_ns("camera") and err < 8e-3
+            assert refused >= len(stamps) - 1  # the first frame may come before the first accelerometer sample
+        else:
+            assert first.stamp_ns < stamps[-1] and err > 15e-3
+            assert refused == 0
 
 
 def test_divergence_resets_from_vision(session):
