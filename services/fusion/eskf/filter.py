@@ -312,11 +312,9 @@ class TrackingFilter:
         cand = self.init_from_vision(t_ns, obs, f_imu)
         if cand is None:
             return None, refused
-        if tof is not None and refused < self.prm.reset_after_vision_rejections:
-            cand.tof_last = tof
-            far = self._tip_disagrees_with_tof(cand, self.A @ cand.R[:, 2], obs.ray)
-            cand.tof_last = (-(1 << 62), 0.0)
-            if far:
+        fresh = tof is not None and t_ns - tof[0] <= self._tof_fresh_ns
+        if fresh and refused < self.prm.reset_after_vision_rejections:
+            if self._junction_off_range(cand.R, 0.0, tof[1], self.A @ cand.R[:, 2], obs.ray):
                 return None, refused + 1
         return cand, 0
 
@@ -655,23 +653,30 @@ class TrackingFilter:
         self._update(s, H, y, r_var, math.inf, "depth_anchor")
 
     def _tip_disagrees_with_tof(self, s: State, u_c: np.ndarray, d: np.ndarray, R: np.ndarray | None = None) -> bool:
-        """Whether the depth the junction ray implies on the present shaft line (or on the shaft
-        at attitude R: a candidate pose) is further than `vision_tip_tof_gate_mm` from the depth
-        of the latest ToF range (only while b_rho is free, so current). The labeler's gross
-        junction errors (a wrong end of the shaft, 5-25 mm) pass the chi-square gate when the
-        depth has grown uncertain between frames; the ToF is the independent depth that tells
-        them apart."""
+        """Whether the junction ray puts the tip on the present shaft line (or on the shaft at
+        attitude R: a candidate pose) further than `vision_tip_tof_gate_mm` from the latest ToF
+        range's depth (`_junction_off_range`; only while b_rho is free, so current). The
+        labeler's gross junction errors (a wrong end of the shaft, 5-25 mm) pass the chi-square
+        gate when the depth has grown uncertain between frames; the ToF is the independent depth
+        that tells them apart."""
+        if not self.brho_free(s) or s.t_ns - s.tof_last[0] > self._tof_fresh_ns:
+            return False
+        return self._junction_off_range(s.R if R is None else R, s.brho, s.tof_last[1], u_c, d)
+
+    def _junction_off_range(self, R: np.ndarray, brho: float, range_m: float, u_c: np.ndarray, d: np.ndarray) -> bool:
+        """Whether the depth the junction ray d implies on the shaft at attitude R (direction u_c,
+        camera coordinates) is further than `vision_tip_tof_gate_mm` from the depth of the range
+        range_m less the offset brho; never where the gate is 0, without the ToF, or where the
+        beam or the shaft grazes the ToF's plane."""
         gate = self.prm.vision_tip_tof_gate_mm * 1e-3
-        if gate <= 0 or not self.tof or not self.brho_free(s) or s.t_ns - s.tof_last[0] > self._tof_fresh_ns:
+        if gate <= 0 or not self.tof:
             return False
         c = self.c
         m = c.tof_plane_normal_base
-        R = s.R if R is None else R
-        u = R[:, 2]
-        mu, mb = float(m @ u), float(m @ (R @ c.tof_beam_tool))
+        mu, mb = float(m @ R[:, 2]), float(m @ (R @ c.tof_beam_tool))
         if abs(mu) < 0.2 or abs(mb) < 0.05:
             return False
-        L_tof = (c.tof_plane_h_m - float(m @ (self.rcm + R @ c.tof_origin_tool_m)) - (s.tof_last[1] - s.brho) * mb) / mu
+        L_tof = (c.tof_plane_h_m - float(m @ (self.rcm + R @ c.tof_origin_tool_m)) - (range_m - brho) * mb) / mu
         L_vis = closest_params(self.rcm_cam, u_c, d)[0] + self.jp
         return abs(L_vis - L_tof) > gate
 

@@ -84,7 +84,7 @@ class _Track:
         # the streams' noise factors of the state a reset discarded (`State.noise`): what a
         # stream's innovations taught is kept for the next state; None before any reset
         self.noise: np.ndarray | None = None
-        self.tof_last: tuple[int, float] | None = None  # (t_ns, range_m) of the latest range
+        self.tof_last: tuple[int, float] | None = None  # (t_ns, range_m) of the latest range while there is no state
         self.start_refused = 0  # vision starts the ToF refused in a row (`TrackingFilter.start_from_vision`)
 
     def copy(self) -> _Track:
@@ -405,9 +405,10 @@ class FusionRunner:
             if s is not None:
                 f.on_accel(s, t, payload)
         elif kind == "tof":
-            tr.tof_last = (t, payload)
             if s is not None:  # at the state's time: at most one gyro period earlier
                 f.update_tof(s, payload)
+            else:  # what a start from vision is checked against
+                tr.tof_last = (t, payload)
         elif kind == "vision":
             if s is not None:
                 f.propagate(s, t)
