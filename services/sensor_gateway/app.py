@@ -14,6 +14,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from tiplog.config import ServiceConfig
+from tiplog.priority import KernelWorkerPriority
 from tiplog.service import ServiceContext, run_service
 
 from .camera import CameraRunner
@@ -82,6 +83,10 @@ class SensorGatewayConfig(ServiceConfig):
     read_timeout_s: float = Field(0.05, gt=0.0, le=1.0)
     camera: CameraSettings = Field(default_factory=CameraSettings)
     calibration_file: str = ""  # YAML: width, height, K, D, distortion_model
+    # The kernel's unbound workers carry a serial device's bytes to read() (tiplog/priority.py):
+    # below 0 they are kept at this nice value (root or CAP_SYS_NICE; in a container, the host's
+    # process namespace), so that a loaded host cannot hold the device's samples back. 0: left alone.
+    kernel_workers_nice: int = Field(0, ge=-20, le=0)
 
     @field_validator("calibration_file")
     @classmethod
@@ -122,16 +127,23 @@ def body(ctx: ServiceContext[SensorGatewayConfig]) -> None:
             stall_timeout_s=cfg.camera.stall_timeout_s,
             reconnect_s=cfg.camera.reconnect_s,
         )
+    workers = KernelWorkerPriority(cfg.kernel_workers_nice, ctx.log) if reader and cfg.kernel_workers_nice else None
+    if workers is not None:
+        workers.apply()
     for worker in (reader, camera):
         if worker is not None:
             worker.start()
     try:
         while not ctx.stop.wait(cfg.status_period_s):
+            if workers is not None:
+                workers.apply()
             status.publish_periodic()
     finally:
         for worker in (camera, reader):
             if worker is not None:
                 worker.stop(timeout_s=1.0)
+        if workers is not None:
+            workers.restore()  # the host as it was
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -42,6 +42,10 @@ BAD = [
         "recorder:\n  camera_archive: mp4\n",
         "config error: recorder.camera_archive: Input should be 'jpeg' or 'raw' (got 'mp4')",
     ),
+    (  # a priority the kernel's workers would lose by
+        "sensor_gateway:\n  kernel_workers_nice: 5\n",
+        "config error: sensor_gateway.kernel_workers_nice: Input should be less than or equal to 0 (got 5)",
+    ),
 ]
 
 
