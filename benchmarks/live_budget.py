@@ -195,7 +195,13 @@ def _measure(tmp: Path, cfg: dict, env: dict, seconds: float, startup_only: bool
             return cb
 
         bus.subscribe("fusion/state", on_state)
-        bus.subscribe("device/gyro", lambda m, _i: acc.add("gyro", m.header.stamp_ns))
+
+        def on_gyro(m, i) -> None:
+            acc.add("gyro", m.header.stamp_ns)
+            if m.header.device_stamp_ns:  # when the gateway published it, against the device's clock
+                acc.add("device_wait", i.publish_ns, (i.publish_ns - m.header.device_stamp_ns) / 1e6)
+
+        bus.subscribe("device/gyro", on_gyro)
         bus.subscribe("vision/observation", on_obs)
         for topic in ("fusion/diagnostics", "vision/status", "bench/status"):
             bus.subscribe(topic, keep(topic))
@@ -269,6 +275,17 @@ def _p95(x: list[float]) -> float:
     return float(np.percentile(x, 95)) if x else float("nan")
 
 
+def _device_waits(waits: dict[int, list[float]], k: int, window: int = 10) -> list[float]:
+    """How much later than the quickest of the seconds around it (within `window`, so that the
+    device clock's drift cancels) each gyro sample of second k was published by the gateway [ms]:
+    the time its bytes waited on the way from the device (the tty layer, the reader)."""
+    here = waits.get(k, [])
+    if not here:
+        return []
+    base = min(v for j in range(k - window, k + window + 1) for v in waits.get(j, []))
+    return [v - base for v in here]
+
+
 def _per_second(acc: Seconds, n: int) -> dict:
     rows = []
     prev: dict[str, float] = {}
@@ -290,6 +307,7 @@ def _per_second(acc: Seconds, n: int) -> dict:
             "display_lag_p95_ms": _p95(acc.samples["display_lag"].get(k, [])),
             "vision_hz": acc.counts["vision"].get(k, 0),
             "vision_latency_p95_ms": _p95(acc.samples["vision"].get(k, [])),
+            "device_wait_p95_ms": _p95(_device_waits(acc.samples["device_wait"], k)),
         }
         if diag:
             d = diag[-1]
@@ -322,6 +340,7 @@ def _summary(acc: Seconds, rows: list[dict]) -> dict:
         "seconds_under_195": sum(h < TARGETS["fusion_hz_min"] for h in state_hz),
         "display_lag_p50_ms": float(np.percentile(lags, 50)) if lags else float("nan"),
         "display_lag_p95_ms": _p95(lags),
+        "device_wait_p95_ms": _p95([v for k in range(len(rows)) for v in _device_waits(acc.samples["device_wait"], k)]),
         "vision_hz_mean": float(np.mean([r["vision_hz"] for r in rows])) if rows else 0.0,
         "vision_latency_p50_ms": float(np.percentile(vlat, 50)) if vlat else float("nan"),
         "vision_latency_p95_ms": _p95(vlat),
@@ -372,14 +391,15 @@ def _print(r: dict) -> None:
     if "per_second" not in r:
         return
     print(
-        f"\n{'t':>4} {'gyro':>5} {'state':>6} {'flag95':>6} {'lag95':>6} {'vis/s':>5} {'vlat95':>7} {'vown95':>6} {'stale':>5} {'cam/s':>5} {'late':>4} {'reacq':>5} {'reset':>5} {'NIS':>5}"
+        f"\n{'t':>4} {'gyro':>5} {'state':>6} {'flag95':>6} {'lag95':>6} {'vis/s':>5} {'vlat95':>7} {'vown95':>6} {'stale':>5} {'cam/s':>5} {'late':>4} {'reacq':>5} {'reset':>5} {'NIS':>5} {'dev95':>6}"
     )
     for row in r["per_second"]:
         print(
             f"{row['t']:4d} {row['gyro_hz']:5d} {row['state_hz']:6d} {row['state_lag_p95_ms']:6.1f} {row['display_lag_p95_ms']:6.1f} {row['vision_hz']:5d} "
             f"{row['vision_latency_p95_ms']:7.0f} {row.get('vision_own_p95_ms', float('nan')):6.0f} {row.get('vision_dropped_stale', 0):5.0f} "
             f"{row.get('camera_hz', float('nan')):5.1f} {row.get('camera_skipped_late', 0):4.0f} "
-            f"{row.get('reacquisitions', 0):5.0f} {row.get('resets', 0):5.0f} {row.get('nis_vision_axis', float('nan')):5.1f}"
+            f"{row.get('reacquisitions', 0):5.0f} {row.get('resets', 0):5.0f} {row.get('nis_vision_axis', float('nan')):5.1f} "
+            f"{row['device_wait_p95_ms']:6.1f}"
         )
     s = r["summary"]
     print(
@@ -389,7 +409,8 @@ def _print(r: dict) -> None:
         + "\n"
         f"  fusion/state: min {s['state_hz_min']} Hz, median {s['state_hz_median']:g} Hz, "
         f"{s['seconds_under_195']} s under 195 Hz; fusion input queue drops {s['fusion_queue_drops']}\n"
-        f"  display lag: p50 {s['display_lag_p50_ms']:.1f} ms, p95 {s['display_lag_p95_ms']:.1f} ms\n"
+        f"  display lag: p50 {s['display_lag_p50_ms']:.1f} ms, p95 {s['display_lag_p95_ms']:.1f} ms; "
+        f"device samples' wait before the gateway published them: p95 {s['device_wait_p95_ms']:.1f} ms\n"
         f"  vision: {s['vision_hz_mean']:.1f} obs/s, latency p50 {s['vision_latency_p50_ms']:.0f} ms, "
         f"p95 {s['vision_latency_p95_ms']:.0f} ms; {s['vision_dropped_stale']} frames dropped as stale\n"
         f"  camera (pixel tier): {s['camera_hz_mean']:.1f} frames/s, {s['camera_skipped_late']} skipped late, "

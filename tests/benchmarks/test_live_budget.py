@@ -43,6 +43,21 @@ def test_each_second_counts_what_happened_in_it_and_the_targets_follow():
     assert t["vision >= 10 obs/s"] and t["vision latency p95 <= 250 ms"] and t["vision-axis NIS within x2 of 4"]
 
 
+def test_the_device_wait_is_against_the_quickest_sample_of_the_seconds_around():
+    acc = Seconds()
+    acc.t0_ns = 10 * S
+    offset_ms = 5_000.0  # the device clock's offset from the host's: cancels
+    for k in range(30):
+        for i in range(200):
+            t = acc.t0_ns + k * S + i * 5_000_000
+            late = 300.0 if k == 20 and i < 20 else 2.0 + 0.001 * k  # a held-up burst; a drifting clock
+            acc.add("device_wait", t, offset_ms + late)
+    rows = _per_second(acc, 30)["per_second"]
+    assert rows[5]["device_wait_p95_ms"] == pytest.approx(0.0, abs=0.02)
+    assert rows[20]["device_wait_p95_ms"] == pytest.approx(298.0, abs=0.1)  # 20 of 200 samples 298 ms late
+    assert rows[29]["device_wait_p95_ms"] == pytest.approx(0.0, abs=0.02)  # drift cancelled by the window
+
+
 def test_the_demo_configuration_moves_only_where_it_runs(tmp_path):
     cfg = demo_config(tmp_path, fresh=True)
     assert cfg["bench"]["camera_tier"] == "pixel" and cfg["bench"]["scenario"] == "demo"
