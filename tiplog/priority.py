@@ -76,6 +76,8 @@ class KernelWorkerPriority:
         if not workers:
             self._once("none", "no kernel workers visible in %s: their priority is left as it is", self._proc)
             return 0
+        alive = {pid for pid, _, _ in workers}
+        self._before = {pid: v for pid, v in self._before.items() if pid in alive}  # retired ones go
         n = 0
         for pid, name, nice in workers:
             if nice <= self.nice:
@@ -102,9 +104,13 @@ class KernelWorkerPriority:
         return n
 
     def restore(self) -> int:
-        """Put the workers raised (and still there) back to the nice they had; returns how many."""
+        """Put the workers raised (and still workers: a retired one's pid may be another process's
+        now) back to the nice they had; returns how many."""
+        alive = {pid for pid, _, _ in kernel_workers(self._proc)}
         n = 0
         for pid, nice in self._before.items():
+            if pid not in alive:
+                continue
             try:
                 self._set(os.PRIO_PROCESS, pid, nice)
                 n += 1

@@ -72,6 +72,11 @@ def test_only_workers_above_the_target_are_raised_and_a_refusal_is_said_once(tmp
     assert kw.apply() == 1 and calls == [(os.PRIO_PROCESS, 7, -10)] and kw.raised == 1
     assert kw.restore() == 1 and calls[-1] == (os.PRIO_PROCESS, 7, 0)  # put back as it was
     assert kw.restore() == 0
+    kw.apply()
+    (tmp_path / "2" / "task" / "2" / "children").write_text("10 11 ")  # worker 7 retired: its pid is not ours
+    n = len(calls)
+    assert kw.restore() == 0 and len(calls) == n
+    (tmp_path / "2" / "task" / "2" / "children").write_text("7 10 11 ")
 
     def gone(which, pid, n):
         raise ProcessLookupError(3, "No such process")
