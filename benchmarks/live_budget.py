@@ -10,7 +10,9 @@ fit block through `tiplog calibrate block`) where it exists. `--load` adds a pro
 one core busy (a spinning loop at normal priority, standing for what else a cart runs). Per
 second after the first state, each figure on the clock of the process that made it (one host
 clock), so that this process's own delays never read as the system's: device/gyro samples
-arriving at the gateway; fusion/state published (stamp + lag_ms) and fusion's own lag (lag_ms,
+arriving at the gateway, and how long they waited on the way from the device (`dev95`: the
+gateway's publish stamp against the device's clock, above the quickest sample of the 20 s
+around); fusion/state published (stamp + lag_ms) and fusion's own lag (lag_ms,
 p95); display lag (a state's stamp to the dashboard's websocket message carrying it leaving,
 `sent_ns`, p95, as the page gets it); vision observations finished per second and their latency
 (capture stamp to vision's processed stamp, p95); camera frames dropped as stale by vision
