@@ -297,6 +297,7 @@ def _per_second(acc: Seconds, n: int) -> dict:
         prev[key] = value
         return d
 
+    waits = [_device_waits(acc.samples["device_wait"], k) for k in range(n)]
     for k in range(n):
         diag = acc.samples["fusion/diagnostics:msg"].get(k, [])
         vst = acc.samples["vision/status:msg"].get(k, [])
@@ -309,7 +310,7 @@ def _per_second(acc: Seconds, n: int) -> dict:
             "display_lag_p95_ms": _p95(acc.samples["display_lag"].get(k, [])),
             "vision_hz": acc.counts["vision"].get(k, 0),
             "vision_latency_p95_ms": _p95(acc.samples["vision"].get(k, [])),
-            "device_wait_p95_ms": _p95(_device_waits(acc.samples["device_wait"], k)),
+            "device_wait_p95_ms": _p95(waits[k]),
         }
         if diag:
             d = diag[-1]
@@ -328,10 +329,10 @@ def _per_second(acc: Seconds, n: int) -> dict:
             row["camera_skipped_late"] = delta("late", bst[-1].counts.get("frames_skipped_late", 0))
             row["camera_behind"] = bst[-1].behind
         rows.append(row)
-    return {"per_second": rows, "summary": _summary(acc, rows)}
+    return {"per_second": rows, "summary": _summary(acc, rows, [v for w in waits for v in w])}
 
 
-def _summary(acc: Seconds, rows: list[dict]) -> dict:
+def _summary(acc: Seconds, rows: list[dict], device_waits: list[float]) -> dict:
     lags = [v for r in acc.samples["display_lag"].values() for v in r]
     vlat = [v for r in acc.samples["vision"].values() for v in r]
     state_hz = [r["state_hz"] for r in rows]
@@ -342,7 +343,7 @@ def _summary(acc: Seconds, rows: list[dict]) -> dict:
         "seconds_under_195": sum(h < TARGETS["fusion_hz_min"] for h in state_hz),
         "display_lag_p50_ms": float(np.percentile(lags, 50)) if lags else float("nan"),
         "display_lag_p95_ms": _p95(lags),
-        "device_wait_p95_ms": _p95([v for k in range(len(rows)) for v in _device_waits(acc.samples["device_wait"], k)]),
+        "device_wait_p95_ms": _p95(device_waits),
         "vision_hz_mean": float(np.mean([r["vision_hz"] for r in rows])) if rows else 0.0,
         "vision_latency_p50_ms": float(np.percentile(vlat, 50)) if vlat else float("nan"),
         "vision_latency_p95_ms": _p95(vlat),
