@@ -152,7 +152,9 @@ class MagConfig(_M):
     inclination_deg: float = F(64.0, ge=-90.0, le=90.0)
     declination_deg: float = F(2.0, ge=-180.0, le=180.0)
     noise_sd_ut: float = F(0.4, ge=0.0, le=20.0)
-    hard_iron_sd_ut: float = F(3.0, ge=0.0, le=100.0)
+    hard_iron_sd_ut: float = F(
+        2.0, ge=0.0, le=100.0, description="residual hard iron per axis: the paper's 4.8 deg is a median draw"
+    )
     pose_disturbance_sd_ut: float = F(1.0, ge=0.0, le=100.0, description="field-to-gravity angle up to ~4.8 deg")
     pose_corr_deg: float = F(8.0, gt=0.0, le=180.0)
     pose_corr_m: float = F(0.02, gt=0.0, le=1.0)

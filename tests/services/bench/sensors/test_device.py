@@ -181,3 +181,33 @@ def test_mag_session_scale_and_pose_disturbance():
         m = st["mag"].values
         assert np.linalg.norm(m.mean(0)) == pytest.approx(scales[-1] * sc.mag.earth_field_ut, rel=0.2)
     assert min(scales) >= sc.mag.session_scale_min and max(scales) <= sc.mag.session_scale_max
+
+
+def _field_to_gravity_change_deg(st: dict) -> float:
+    """How much the angle between the magnetometer's field and the accelerometer's gravity changed
+    from the rest before a turn (0.2-1.8 s) to the rest after it (4.2-5.8 s)."""
+    angles = []
+    for lo, hi in ((0.2, 1.8), (4.2, 5.8)):
+        a, m = st["accel"], st["mag"]
+        ea = a.values[(a.t_true_ns > lo * 1e9) & (a.t_true_ns < hi * 1e9)].mean(0)
+        em = m.values[(m.t_true_ns > lo * 1e9) & (m.t_true_ns < hi * 1e9)].mean(0)
+        angles.append(np.degrees(np.arccos(ea @ em / np.linalg.norm(ea) / np.linalg.norm(em))))
+    return abs(angles[1] - angles[0])
+
+
+@pytest.mark.parametrize("hard_iron_ut, paper_is_typical", [(None, True), (1.0, False), (3.0, False)])
+def test_mag_hard_iron_sized_to_the_papers_field_to_gravity_change(hard_iron_ut, paper_is_typical):
+    """The paper's field-to-gravity angle changed by up to 4.8 deg between poses: over draws of
+    the session (hard iron, pose disturbance) one 90 deg turn changes it by less than that in the
+    median and by more in the top tenth, at the default size; a third of it (1 uT) puts 4.8 deg
+    beyond nearly every draw, 3 uT (the size before) makes it less than a median draw."""
+    over = {} if hard_iron_ut is None else {"mag.hard_iron_sd_ut": hard_iron_ut}
+    sc, const, gt = _setup(
+        over, duration_s=6.0, angle=lambda t: np.pi / 2 * np.clip((t - 2.0) / 2.0, 0, 1), axis=[0, 1, 0]
+    )
+    changes = [
+        _field_to_gravity_change_deg(sensors.simulate_sensors(gt, sc, const, np.random.default_rng(seed))[2])
+        for seed in range(40)
+    ]
+    typical = np.median(changes) < 4.8 < np.percentile(changes, 90)
+    assert typical == paper_is_typical, (np.median(changes), np.percentile(changes, 90))
