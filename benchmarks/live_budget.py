@@ -156,8 +156,11 @@ def run(
             }
             if keep:
                 Path(keep).mkdir(parents=True, exist_ok=True)
-                for f in sorted((tmp / "rec").glob("*.mcap")):
+                recordings = sorted((tmp / "rec").glob("*.mcap"))
+                for f in recordings:
                     shutil.move(str(f), Path(keep) / f.name)
+                if recordings and (tmp / "up.err").exists():  # named after the run's first recording
+                    shutil.copy(tmp / "up.err", Path(keep) / f"{recordings[0].stem}.log")
             return r
     finally:
         if spin is not None:
@@ -434,7 +437,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--startup-only", action="store_true", help="stop at the first state on the page")
     ap.add_argument("--json", metavar="OUT", help="write the figures (per second and summary) to this file")
     ap.add_argument("--log", metavar="FILE", help="copy tiplog up's log up to the first state to this file")
-    ap.add_argument("--keep", metavar="DIR", help="move the run's recording into this folder")
+    ap.add_argument(
+        "--keep", metavar="DIR", help="move the run's recording into this folder, with tiplog up's log (RECORDING.log)"
+    )
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="configuration override")
     ap.add_argument(
         "--calibration",
