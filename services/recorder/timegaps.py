@@ -7,6 +7,11 @@ are not gaps), so no table of rates is needed and a topic at 1 Hz and one at 240
 judged alike. An interval counts as a gap once `min_intervals` have been seen and it exceeds
 both `factor` times the expected interval and `floor_s`. The recorder (live, on arrival) and
 `tiplog info` (on the file's log times) use the same rule.
+
+The rate reported beside the gaps (`expected_hz` in `as_dict`) is the topic's rate while it
+flowed: every interval that was not a gap, over their total time. The running mean forgets
+(a publisher that flushes what it held at its stop, as fusion's settled stream ends with a
+second of states at once, leaves it at thousands of hertz), so it is not the figure to show.
 """
 
 from __future__ import annotations
@@ -30,10 +35,17 @@ class TimeGaps:
     _last_ns: int | None = None
     _intervals: int = 0
     _mean_ns: float = 0.0
+    _flowing_ns: int = 0  # the total time of the intervals that were not gaps
 
     @property
     def expected_hz(self) -> float:
+        """The rate the next interval is judged against (the running mean's)."""
         return NS_PER_S / self._mean_ns if self._mean_ns > 0 else 0.0
+
+    @property
+    def flowing_hz(self) -> float:
+        """The topic's rate while it flowed: the intervals that were not gaps, over their time."""
+        return self._intervals * NS_PER_S / self._flowing_ns if self._flowing_ns > 0 else 0.0
 
     def add(self, t_ns: int) -> bool:
         """One arrival at `t_ns`; True when the interval before it was a gap."""
@@ -48,6 +60,7 @@ class TimeGaps:
             self.longest_s = max(self.longest_s, dt / NS_PER_S)
             return True
         self._intervals += 1
+        self._flowing_ns += dt
         a = max(self.alpha, 1.0 / self._intervals)  # a plain mean until there are enough
         self._mean_ns += a * (dt - self._mean_ns)
         return False
@@ -57,5 +70,5 @@ class TimeGaps:
             "time_gaps": self.count,
             "time_gap_s": round(self.missing_s, 3),
             "longest_gap_s": round(self.longest_s, 3),
-            "expected_hz": round(self.expected_hz, 3),
+            "expected_hz": round(self.flowing_hz, 3),
         }

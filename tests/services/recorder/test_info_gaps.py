@@ -72,6 +72,20 @@ def test_sequence_and_time_gap_rules_alone():
     assert t.add(49 * 10 * MS + 50 * MS + 200 * MS) is True and t.count == 1
 
 
+def test_a_burst_at_the_end_does_not_become_the_expected_rate(tmp_path):
+    # fusion/state_settled: 200 Hz for a minute, then at its stop the last second's states at
+    # once (10 us apart): the rate shown is the minute's, not the flush's
+    steady = [("fusion/state_settled", k * 5 * MS, k) for k in range(12_000)]
+    t_stop = steady[-1][1] + 5 * MS
+    flush = [("fusion/state_settled", t_stop + k * 10_000, 12_000 + k) for k in range(200)]
+    _write(tmp_path / "flush.mcap", steady + flush)
+    info = inspect(tmp_path / "flush.mcap")
+    settled = info["topics"]["fusion/state_settled"]
+    assert 200.0 <= settled["expected_hz"] < 204.0 and settled["time_gaps"] == 0, settled
+    row = next(ln for ln in format_info(info).splitlines() if ln.startswith("fusion/state_settled"))
+    assert 200.0 <= float(row.split()[4]) < 204.0, row
+
+
 def test_the_recorders_counts_have_per_publisher_sequence_gaps_and_time_gaps():
     from services.recorder.counting import Counting
     from tiplog.bus import SampleInfo
