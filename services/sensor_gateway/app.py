@@ -84,9 +84,12 @@ class SensorGatewayConfig(ServiceConfig):
     camera: CameraSettings = Field(default_factory=CameraSettings)
     calibration_file: str = ""  # YAML: width, height, K, D, distortion_model
     # The kernel's unbound workers carry a serial device's bytes to read() (tiplog/priority.py):
-    # below 0 they are kept at this nice value (root or CAP_SYS_NICE; in a container, the host's
-    # process namespace), so that a loaded host cannot hold the device's samples back. 0: left alone.
+    # below 0 they are kept at this nice value, or with kernel_workers_fifo above 0 in the
+    # real-time class SCHED_FIFO at that priority (root or CAP_SYS_NICE; in a container, the
+    # host's process namespace), so that a loaded host cannot hold the device's samples back.
+    # Both 0: left alone.
     kernel_workers_nice: int = Field(0, ge=-20, le=0)
+    kernel_workers_fifo: int = Field(0, ge=0, le=99)
 
     @field_validator("calibration_file")
     @classmethod
@@ -127,7 +130,9 @@ def body(ctx: ServiceContext[SensorGatewayConfig]) -> None:
             stall_timeout_s=cfg.camera.stall_timeout_s,
             reconnect_s=cfg.camera.reconnect_s,
         )
-    workers = KernelWorkerPriority(cfg.kernel_workers_nice, ctx.log) if reader and cfg.kernel_workers_nice else None
+    workers = None
+    if reader and (cfg.kernel_workers_nice or cfg.kernel_workers_fifo):
+        workers = KernelWorkerPriority(cfg.kernel_workers_nice, ctx.log, fifo=cfg.kernel_workers_fifo)
     if workers is not None:
         workers.apply()
     for worker in (reader, camera):
