@@ -5,8 +5,10 @@ device's smoothed ToF range is shown as a number above zero (it says "not valid"
 device flags it so), and the trail the page holds never jumps further than the tip could travel
 between two consecutive states, except where fusion reported a reset or a re-acquisition, or
 where the jump is a correction (the estimate lands closer to the robot's tip than it was); the
-page breaks the line at every jump. Screenshots at 30 s and 60 s go to `$TIPLOG_TEST_ARTIFACTS`
-(a pytest temporary folder otherwise)."""
+page breaks the line at every jump. As `make demo` does, the bench is calibrated first (a fit
+block through `tiplog calibrate block`), and the vision axis then agrees with the filter: its
+noise factor stays under 2. Screenshots at 30 s and 60 s go to `$TIPLOG_TEST_ARTIFACTS` (a pytest
+temporary folder otherwise)."""
 
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ import yaml
 from tests.conftest import ROOT, free_port
 from tests.services.dashboard.live_system import OPERATOR_TOKEN, SHOT_TIMEOUT_MS, signed_in
 from tests.system.harness import UpRun
+from tiplog.cli import main as tiplog_main
 from tiplog.clock import now_ns
 from tiplog.up import DEFAULT_SERVICES
 from tiplog.v1 import fusion_pb2
@@ -53,16 +56,28 @@ def demo_config(tmp: Path) -> dict:
     return cfg
 
 
+def demo_calibration(tmp: Path) -> Path:
+    """The calibration `make demo` hands fusion (the Makefile's DEMO_CAL: a fit block on the
+    bench, seed 1, through `tiplog calibrate block`)."""
+    fit, cal = tmp / "fit.mcap", tmp / "calibration.yaml"
+    assert tiplog_main(["sim", "generate", "--scenario", "fit", "--seed", "1", "--out", str(fit), "--quiet"]) == 0
+    assert tiplog_main(["calibrate", "block", str(fit), "--out", str(cal)]) == 0
+    return cal
+
+
 class Diagnostics:
-    """fusion/diagnostics as received (host clock): re-acquisitions plus resets, in order."""
+    """fusion/diagnostics as received (host clock): re-acquisitions plus resets, in order, and
+    the vision axis' noise factor of the latest."""
 
     def __init__(self) -> None:
         self.rows: list[tuple[int, int]] = []
+        self.axis_factor = float("nan")
         self.lock = threading.Lock()
 
     def __call__(self, msg: fusion_pb2.FusionDiagnostics, _info) -> None:
         with self.lock:
             self.rows.append((now_ns(), int(msg.updates.get("reacquire", 0)) + int(msg.resets)))
+            self.axis_factor = msg.noise_scale.get("vision_axis", float("nan"))
 
     def changed_between(self, a_ns: float, b_ns: float) -> bool:
         """Did the count change (rise, or start again with a new fusion) from a_ns to b_ns?"""
@@ -109,7 +124,8 @@ def watched(browser, artifacts, tmp_path_factory) -> Watched:
     """The demo watched for a minute from the first estimate on the page, once for the module."""
     tmp = tmp_path_factory.mktemp("demo")
     diag = Diagnostics()
-    with UpRun(tmp, DEFAULT_SERVICES, demo_config(tmp)) as up:
+    cal = demo_calibration(tmp)
+    with UpRun(tmp, DEFAULT_SERVICES, demo_config(tmp), extra_args=["--calibration", str(cal)]) as up:
         up.bus.subscribe("fusion/diagnostics", diag)
         up.poll_api("/api/state", lambda a: a["received"] > 50, timeout_s=300)  # kernels, vision's model
         ctx, page = signed_in(browser, up, OPERATOR_TOKEN)
@@ -212,6 +228,8 @@ def test_the_demo_for_a_minute_in_the_browser(watched):
         # (state time s from the dashboard's start, mm, ms, error before and after, mm)
         "jumps neither a reset, a re-acquisition nor a correction": unexplained
         and (unexplained, f"{outages} outages", f"restarts {watched.restarts}"),
+        # calibrated as `make demo` does, the tangent planes agree with the filter
+        "vision axis noise factor not under 2": not watched.diag.axis_factor < 2.0 and watched.diag.axis_factor,
     }
     bad = {k: v for k, v in failed.items() if v}
     assert not bad, bad
