@@ -133,7 +133,6 @@ def body(ctx: ServiceContext[SensorGatewayConfig]) -> None:
     workers = None
     if reader and (cfg.kernel_workers_nice or cfg.kernel_workers_fifo):
         workers = KernelWorkerPriority(cfg.kernel_workers_nice, ctx.log, fifo=cfg.kernel_workers_fifo)
-    if workers is not None:
         workers.apply()
     for worker in (reader, camera):
         if worker is not None:
