@@ -15,10 +15,14 @@ the display stream the live service published on fusion/state instead.
 
 `--compare full:imu_vision` adds, per block, the first variant's tip RMSE less the second's with
 a block-bootstrap 95 % interval (`evaluation.paired_rmse_difference`), and a tally of blocks
-won, lost and lost beyond the interval.
+won, lost and lost beyond the interval. `--ratio junction_hidden:full:2` adds, per session, the
+first variant's pooled tip RMSE over the second's with the same bootstrap's 95 % interval
+(`evaluation.paired_rmse_ratio`) and whether the interval lies above, below or across the
+target (default 1): the paper's ablation structure is stated as such ratios.
 
     python -m benchmarks.fusion_accuracy SESSION.mcap [...] [--variants full,imu_tof,...]
-        [--calibration FILE] [--shared-blackouts] [--as-live] [--compare A:B,...] [--json OUT]
+        [--calibration FILE] [--shared-blackouts] [--as-live] [--compare A:B,...]
+        [--ratio A:B[:TARGET],...] [--json OUT]
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ from study.evaluation import (
     coverage_note,
     load_truth,
     paired_rmse_difference,
+    paired_rmse_ratio,
     score_continuous,
 )
 from tiplog.calibration import Calibration, CalibrationError
@@ -90,7 +95,15 @@ def main(argv: list[str] | None = None) -> int:
         help="comma list of A:B (variants given in --variants): per block, A's tip RMSE less B's with its "
         "block-bootstrap 95 %% interval, and a tally of blocks won, lost and lost beyond that interval",
     )
-    ap.add_argument("--segment-s", type=float, default=2.0, help="--compare's bootstrap segment (default 2 s)")
+    ap.add_argument(
+        "--ratio",
+        default="",
+        help="comma list of A:B or A:B:TARGET (variants given in --variants): per session, A's pooled tip RMSE "
+        "over B's with its block-bootstrap 95 %% interval, against TARGET (default 1)",
+    )
+    ap.add_argument(
+        "--segment-s", type=float, default=2.0, help="--compare's and --ratio's bootstrap segment (default 2 s)"
+    )
     ap.add_argument("--json", help="write all results here")
     args = ap.parse_args(argv)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -105,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.segment_s > 0:
         ap.error(f"--segment-s: must be above 0, not {args.segment_s}")
     args.pairs = pairs
+    args.ratios = [_parse_ratio(ap, r.strip(), variants) for r in args.ratio.split(",") if r.strip()]
     try:
         return _run(args, variants)
     except (CalibrationError, EvaluationError, ParamsError, UserError, OSError) as e:  # one line, no traceback
@@ -163,6 +177,15 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
                 f"[{blk}] cpu {cpu:.1f} s resets {diag['resets']} reacquired {row['reacquired']}",
                 flush=True,
             )
+        for a, b, target in args.ratios:
+            r = pooled_ratio(series[a], series[b], target, args.segment_s)
+            results.append({"session": Path(path).name, "ratio": f"{a}:{b}", **r})
+            verdict = "above" if r["above"] else "below" if r["below"] else "a tie with"
+            print(
+                f"{Path(path).name:<22} {a} / {b} pooled {r['rmse_a_mm']:.3f} / {r['rmse_b_mm']:.3f} = "
+                f"{r['ratio']:.2f} (95 % {r['low']:.2f} .. {r['high']:.2f}, {verdict} {target:g})",
+                flush=True,
+            )
         for a, b in args.pairs:
             rows = compare_blocks(series[a], series[b], args.segment_s)
             results.append({"session": Path(path).name, "compare": f"{a}:{b}", "blocks": rows})
@@ -184,6 +207,26 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
+
+
+def _parse_ratio(ap: argparse.ArgumentParser, text: str, variants: list[str]) -> tuple[str, str, float]:
+    parts = text.split(":")
+    target = 1.0
+    if len(parts) == 3:
+        try:
+            target = float(parts[2])
+        except ValueError:
+            target = float("nan")
+    if len(parts) not in (2, 3) or not all(x in variants for x in parts[:2]) or not target > 0:
+        ap.error(f"--ratio: {text!r} is not A:B or A:B:TARGET with both in --variants and TARGET above 0")
+    return parts[0], parts[1], target
+
+
+def pooled_ratio(errors_a: dict, errors_b: dict, target: float, segment_s: float) -> dict:
+    """`paired_rmse_ratio` of A's tip error over B's, every block of the session pooled."""
+    ta, ea = (np.concatenate([errors_a[k][i] for k in errors_a]) for i in (0, 1))
+    tb, eb = (np.concatenate([errors_b[k][i] for k in errors_b]) for i in (0, 1))
+    return paired_rmse_ratio(ta, ea, tb, eb, target, segment_s)
 
 
 def compare_blocks(errors_a: dict, errors_b: dict, segment_s: float) -> list[dict]:

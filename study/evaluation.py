@@ -196,6 +196,28 @@ def block_errors_mm(series: list) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return {name: (t, e * 1e3) for name, t, _, _, e in series}
 
 
+def _paired_segments(
+    t_a_ns: np.ndarray, err_a_mm: np.ndarray, t_b_ns: np.ndarray, err_b_mm: np.ndarray, segment_s: float, where: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per `segment_s` segment of the samples both estimated: (sample count, a's and b's sums of
+    squared error). Stamps more than a segment apart (two blocks) never share one."""
+    t, ia, ib = np.intersect1d(np.asarray(t_a_ns), np.asarray(t_b_ns), assume_unique=True, return_indices=True)
+    if len(t) == 0:
+        raise EvaluationError(f"{where}: the two estimates share no sample time")
+    sq_a = np.asarray(err_a_mm, float)[ia] ** 2
+    sq_b = np.asarray(err_b_mm, float)[ib] ** 2
+    seg = ((t - t[0]) // int(segment_s * 1e9)).astype(np.int64)
+    _, seg = np.unique(seg, return_inverse=True)
+    k = int(seg.max()) + 1
+    n = np.bincount(seg, minlength=k).astype(float)
+    return n, np.bincount(seg, sq_a, minlength=k), np.bincount(seg, sq_b, minlength=k)
+
+
+def _check_bootstrap(where: str, segment_s: float, draws: int, level: float) -> None:
+    if not segment_s > 0 or draws < 1 or not 0 < level < 1:
+        raise EvaluationError(f"{where}: segment_s {segment_s}, draws {draws}, level {level}")
+
+
 def paired_rmse_difference(
     t_a_ns: np.ndarray, err_a_mm: np.ndarray, t_b_ns: np.ndarray, err_b_mm: np.ndarray,
     segment_s: float = 2.0, draws: int = 2000, level: float = 0.95, seed: int = 0,
@@ -210,24 +232,14 @@ def paired_rmse_difference(
     the interval excludes zero (a difference the block shows, not one a different course of
     the same kind of motion could reverse), else 0. Raises EvaluationError for no common
     samples or a segment length, draw count or level out of range."""
-    if not segment_s > 0 or draws < 1 or not 0 < level < 1:
-        raise EvaluationError(f"paired_rmse_difference: segment_s {segment_s}, draws {draws}, level {level}")
-    t, ia, ib = np.intersect1d(np.asarray(t_a_ns), np.asarray(t_b_ns), assume_unique=True, return_indices=True)
-    if len(t) == 0:
-        raise EvaluationError("paired_rmse_difference: the two estimates share no sample time")
-    sq_a = np.asarray(err_a_mm, float)[ia] ** 2
-    sq_b = np.asarray(err_b_mm, float)[ib] ** 2
-    seg = ((t - t[0]) // int(segment_s * 1e9)).astype(np.int64)
-    _, seg = np.unique(seg, return_inverse=True)
-    k = int(seg.max()) + 1
-    n = np.bincount(seg, minlength=k).astype(float)
-    ss_a = np.bincount(seg, sq_a, minlength=k)
-    ss_b = np.bincount(seg, sq_b, minlength=k)
+    _check_bootstrap("paired_rmse_difference", segment_s, draws, level)
+    n, ss_a, ss_b = _paired_segments(t_a_ns, err_a_mm, t_b_ns, err_b_mm, segment_s, "paired_rmse_difference")
+    k = len(n)
     idx = np.random.default_rng(seed).integers(0, k, size=(draws, k))
     n_d = n[idx].sum(1)
     diff_d = np.sqrt(ss_a[idx].sum(1) / n_d) - np.sqrt(ss_b[idx].sum(1) / n_d)
     lo, hi = np.quantile(diff_d, [(1 - level) / 2, (1 + level) / 2])
-    rmse_a, rmse_b = float(np.sqrt(sq_a.mean())), float(np.sqrt(sq_b.mean()))
+    rmse_a, rmse_b = float(np.sqrt(ss_a.sum() / n.sum())), float(np.sqrt(ss_b.sum() / n.sum()))
     return {
         "rmse_a_mm": rmse_a,
         "rmse_b_mm": rmse_b,
@@ -235,6 +247,39 @@ def paired_rmse_difference(
         "low_mm": float(lo),
         "high_mm": float(hi),
         "resolved": int(lo > 0 or hi < 0),
+        "segments": k,
+    }
+
+
+def paired_rmse_ratio(
+    t_a_ns: np.ndarray, err_a_mm: np.ndarray, t_b_ns: np.ndarray, err_b_mm: np.ndarray, target: float = 1.0,
+    segment_s: float = 2.0, draws: int = 2000, level: float = 0.95, seed: int = 0,
+) -> dict[str, float]:  # fmt: skip
+    """rmse_a / rmse_b over the samples both estimated, with the `level` interval of the same
+    block bootstrap as `paired_rmse_difference` (segments drawn with replacement, the ratio
+    computed on each draw): for targets stated as ratios ("at least twice the full fusion's").
+    Pass several blocks' samples at once for a pooled ratio; a segment never spans two blocks
+    more than `segment_s` apart. `above` / `below` are 1 where the whole interval lies above /
+    below `target`; neither is a tie with it. Raises EvaluationError as
+    `paired_rmse_difference`, and for b without error."""
+    _check_bootstrap("paired_rmse_ratio", segment_s, draws, level)
+    n, ss_a, ss_b = _paired_segments(t_a_ns, err_a_mm, t_b_ns, err_b_mm, segment_s, "paired_rmse_ratio")
+    if not ss_b.sum() > 0:
+        raise EvaluationError("paired_rmse_ratio: the second estimate has no error to divide by")
+    k = len(n)
+    idx = np.random.default_rng(seed).integers(0, k, size=(draws, k))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio_d = np.sqrt(ss_a[idx].sum(1) / ss_b[idx].sum(1))
+    lo, hi = np.nanquantile(ratio_d, [(1 - level) / 2, (1 + level) / 2])
+    return {
+        "rmse_a_mm": float(np.sqrt(ss_a.sum() / n.sum())),
+        "rmse_b_mm": float(np.sqrt(ss_b.sum() / n.sum())),
+        "ratio": float(np.sqrt(ss_a.sum() / ss_b.sum())),
+        "low": float(lo),
+        "high": float(hi),
+        "target": float(target),
+        "above": int(lo > target),
+        "below": int(hi < target),
         "segments": k,
     }
 

@@ -1,6 +1,7 @@
 """Per-block comparison of two estimates (`paired_rmse_difference`, `fusion_accuracy
---compare`): a difference that runs through the whole block is resolved, one that rests on a
-single burst of error is not, and only the samples both estimated count."""
+--compare`) and their pooled ratio (`paired_rmse_ratio`, `fusion_accuracy --ratio`): a
+difference that runs through the whole block is resolved, one that rests on a single burst of
+error is not, and only the samples both estimated count."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from study.evaluation import EvaluationError, paired_rmse_difference
+from study.evaluation import EvaluationError, paired_rmse_difference, paired_rmse_ratio
 
 MS = 1_000_000
 
@@ -76,6 +77,35 @@ def test_two_estimates_with_no_common_sample_are_refused():
         paired_rmse_difference(t, e, t + 1, e)
 
 
+def test_a_ratio_through_the_whole_block_clears_its_target_and_one_from_a_burst_ties():
+    t, e = _block()
+    r = paired_rmse_ratio(t, 2.2 * e, t, e, target=2.0)
+    assert r["ratio"] == pytest.approx(2.2, rel=1e-9)
+    assert r["low"] == pytest.approx(2.2, rel=1e-9) and r["high"] == pytest.approx(2.2, rel=1e-9)
+    assert (r["above"], r["below"]) == (1, 0)
+    assert paired_rmse_ratio(t, 1.8 * e, t, e, target=2.0)["below"] == 1
+    # a ratio of 2.2 that rests on one 4 s burst of error in a (1.95 elsewhere): not shown above 2
+    a = 1.95 * e
+    burst = (t >= 40_000 * MS) & (t < 44_000 * MS)
+    a[burst] = np.sqrt(a[burst] ** 2 + np.sum(4.84 * e**2 - a**2) / burst.sum())
+    r = paired_rmse_ratio(t, a, t, e, target=2.0)
+    assert r["ratio"] == pytest.approx(2.2, rel=1e-6)
+    assert r["low"] < 2.0 < r["high"] and (r["above"], r["below"]) == (0, 0)
+    assert r["rmse_a_mm"] == pytest.approx(float(np.sqrt(np.mean(a**2))))
+
+
+def test_a_pooled_ratio_keeps_blocks_apart_and_needs_an_error_to_divide_by():
+    t1, e1 = _block(20.0)
+    t2, e2 = _block(20.0, seed=1)
+    t = np.concatenate([t1, t2 + 100_000 * MS])  # two blocks 80 s apart
+    e = np.concatenate([e1, e2])
+    assert paired_rmse_ratio(t, 3 * e, t, e)["segments"] == 20
+    with pytest.raises(EvaluationError, match="no error to divide by"):
+        paired_rmse_ratio(t, e, t, 0 * e)
+    with pytest.raises(EvaluationError, match="paired_rmse_ratio: segment_s 0.0"):
+        paired_rmse_ratio(t, e, t, e, segment_s=0.0)
+
+
 def test_the_benchmark_compares_blocks_and_tallies_them(tmp_path_factory, tmp_path, capsys):
     from benchmarks.fusion_accuracy import main
     from tests.services.fusion.sessions import bench_session
@@ -83,10 +113,16 @@ def test_the_benchmark_compares_blocks_and_tallies_them(tmp_path_factory, tmp_pa
     session = bench_session(tmp_path_factory, "teleop", 11, 9.0)
     out = tmp_path / "r.json"
     args = [str(session), "--variants", "full,imu_vision", "--compare", "full:imu_vision", "--json", str(out)]
+    args += ["--ratio", "imu_vision:full:2"]
     assert main(args) == 0
     rows = json.loads(out.read_text())
     runs = {r["variant"]: r for r in rows if "variant" in r}
     (cmp_row,) = [r for r in rows if "compare" in r]
+    (ratio,) = [r for r in rows if "ratio" in r]
+    full_pooled = runs["full"]["pooled"]["tip_rmse_mm"]
+    assert ratio["rmse_b_mm"] == pytest.approx(full_pooled, rel=1e-9)  # every block pooled
+    assert ratio["ratio"] == pytest.approx(runs["imu_vision"]["pooled"]["tip_rmse_mm"] / full_pooled, rel=1e-9)
+    assert ratio["low"] <= ratio["ratio"] <= ratio["high"] and ratio["target"] == 2.0
     assert cmp_row["compare"] == "full:imu_vision"
     for c, full, iv in zip(cmp_row["blocks"], runs["full"]["blocks"], runs["imu_vision"]["blocks"], strict=True):
         assert c["name"] == full["name"] == iv["name"]
@@ -98,11 +134,22 @@ def test_the_benchmark_compares_blocks_and_tallies_them(tmp_path_factory, tmp_pa
     assert f"full against imu_vision: better in {won} of {n} blocks" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("compare", ["full:imu_tof", "full", "full:imu_vision:x"])
-def test_a_comparison_of_variants_not_run_is_refused(tmp_path, capsys, compare):
+@pytest.mark.parametrize(
+    "option, value",
+    [
+        ("--compare", "full:imu_tof"),
+        ("--compare", "full"),
+        ("--compare", "full:imu_vision:x"),
+        ("--ratio", "full:imu_tof"),
+        ("--ratio", "full"),
+        ("--ratio", "full:imu_vision:two"),
+        ("--ratio", "full:imu_vision:0"),
+    ],
+)
+def test_a_comparison_of_variants_not_run_is_refused(tmp_path, capsys, option, value):
     from benchmarks.fusion_accuracy import main
 
     with pytest.raises(SystemExit) as e:
-        main([str(tmp_path / "absent.mcap"), "--variants", "full,imu_vision", "--compare", compare])
+        main([str(tmp_path / "absent.mcap"), "--variants", "full,imu_vision", option, value])
     assert e.value.code == 2
-    assert "--compare" in capsys.readouterr().err
+    assert option in capsys.readouterr().err
