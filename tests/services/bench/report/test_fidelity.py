@@ -62,6 +62,22 @@ def test_sd_row_passes_within_its_sampling_interval():
     assert _sd_row(spec, 0.40, 7, "").status == "PASS" and "within" not in _sd_row(spec, 0.40, 7, "").note
 
 
+def test_se_row_passes_within_two_standard_errors_of_its_windows():
+    from services.bench.report.fidelity import _median_se, _se_row
+
+    spec = ("norm", "%", "within 0.06", 0.0, 0.06)
+    # eight 2 s windows of a teleoperated session: each mean norm to 0.04 %, their median to 0.018 %
+    few = _median_se(np.full(8, 0.04))
+    assert few == pytest.approx(np.sqrt(np.pi / 2) * 0.04 / np.sqrt(8))
+    r = _se_row(spec, 0.073, few, "")
+    assert r.status == "PASS" and "within 2 SE" in r.note
+    # hundreds of windows measure the norm tightly: the same value is a failure
+    assert _se_row(spec, 0.073, _median_se(np.full(600, 0.04)), "").status == "FAIL"
+    assert _se_row(spec, 0.2, few, "").status == "FAIL"  # far beyond the band either way
+    assert "within" not in _se_row(spec, 0.03, few, "").note and _se_row(spec, 0.03, few, "").status == "PASS"
+    assert _se_row(spec, None, None, "").status == "n/a"
+
+
 def test_motion_rows_follow_the_session(tmp_path):
     from services.bench.report.data import load
     from services.bench.report.motion import motion_rows
