@@ -29,6 +29,7 @@ _POSITIVE = (
     "tof_map_gp_sigma_mm", "tof_map_gp_noise_mm", "rest_tau_ms", "rest_chunk_ms", "tip_confirm_ms", "tip_confirm_mm", "accel_map_sigma_deg", "accel_map_sigma_mm",
     "accel_map_bin_ms", "accel_map_every_ms", *_GATES,
     "depth_anchor_tau_s", "depth_ref_tau_s", "depth_anchor_sigma_min_mm", "start_depth_mm",
+    "vision_axis_revisit_sigma_deg", "vision_axis_revisit_sigma_mm",
 )  # fmt: skip
 MAX_HISTORY_MS = 120_000.0  # the rewind history lives in memory: a snapshot per gyro sample
 
@@ -205,6 +206,17 @@ class Params:
     """Each tangent plane's normal: vision's held-out residual, inflated for its correlation between frames."""
     vision_offset_sigma_mm: float = 0.4
     """The shaft axis' offset from each tangent plane."""
+    vision_axis_revisit_weight: float = 0.05
+    """Each axis frame's variance is multiplied by 1 + this times the summed kernel weight (widths below) of the axis
+    frames applied within the window at poses near the present one: frames at one pose share its pose-locked error, so
+    at a held attitude (a depth sweep, a hold, a small fast oscillation) each new frame tells less than the first did,
+    while frames along a path that moves on count nearly in full; 0: off."""
+    vision_axis_revisit_window_s: float = 10.0
+    """How far back applied axis frames are counted."""
+    vision_axis_revisit_sigma_deg: float = 5.0
+    """The kernel's width in shaft direction: about the pose-locked error's correlation."""
+    vision_axis_revisit_sigma_mm: float = 10.0
+    """The kernel's width in tip position."""
     vision_ray_sigma_mm: float = 1.0
     """The tip normal to the junction's line of sight."""
     vision_tip_tof_gate_mm: float = 12.0

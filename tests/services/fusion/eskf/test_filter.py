@@ -334,6 +334,50 @@ def test_trocar_and_innovation_gates_reject_wrong_lines():
     assert np.linalg.norm(s.p - p) <= np.linalg.norm(before - p) + 0.02e-3
 
 
+def _axis_frames(params: Params, poses: list[tuple[np.ndarray, np.ndarray]], dt_ns: int = 66_000_000):
+    """A filter without the IMU or the junction fed one axis frame per (R, p), dt_ns apart, its
+    state set to each pose first: the axis' variance factor before each frame, and the state."""
+    c = _calib()
+    f = TrackingFilter(c, params, frozenset({"vision"}))
+    R0, p0 = poses[0]
+    s = f.init_from_vision(0, _obs(c, R0, p0), None)
+    factors = []
+    for k, (R, p) in enumerate(poses, start=1):
+        s.t_ns, s.R, s.p = k * dt_ns, R.copy(), p.copy()
+        factors.append(f._revisit(s))
+        obs = _obs(c, R, p)
+        f.update_vision(s, VisionObservation(obs.n_left, obs.n_right, False, obs.ray))
+    return factors, s
+
+
+def test_axis_frames_at_a_held_pose_weigh_less_as_they_accumulate():
+    """`vision_axis_revisit_weight`: the planes' error is mostly pose-locked, so each axis frame's
+    variance grows with the applied frames near its pose (1 + w per frame at the same pose); frames
+    at poses a few kernel widths away, or older than the window, do not count, and 0 turns it off."""
+    R, p = _pose()
+    held = [(R, p)] * 12
+    factors, s = _axis_frames(Params(), held)
+    assert s.counts["updates:vision_axis"] == 12
+    assert factors[0] == 1.0
+    assert np.allclose(factors, 1.0 + 0.05 * np.arange(12), rtol=1e-6)  # the state sits on the pose
+    # the same frames with the weighting off claim more: the shaft direction's variance ends
+    # smaller (the attitude error's first two components; the third, the roll, vision never sees)
+    off, s_off = _axis_frames(Params(vision_axis_revisit_weight=0.0), held)
+    assert off == [1.0] * 12
+    assert np.trace(s_off.P[6:8, 6:8]) < 0.92 * np.trace(s.P[6:8, 6:8])
+    assert s_off.P[8, 8] == pytest.approx(s.P[8, 8])
+    # a path that moves on, 4 deg (10 mm of tip) per frame: only the last frame counts, in part
+    path = []
+    for k in range(12):
+        Rk = so3_exp(np.array([math.radians(4.0 * k), 0.0, 0.0])) @ R
+        path.append((Rk, RCM + 0.14 * Rk[:, 2]))
+    moving, _ = _axis_frames(Params(), path)
+    assert 1.0 < max(moving) < 1.0 + 0.05 * 0.7  # against 1.55 for the twelfth frame held
+    # frames older than the window are forgotten: one frame per 4 s at one pose, window 10 s
+    sparse, _ = _axis_frames(Params(), held[:6], dt_ns=4_000_000_000)
+    assert sparse[-1] == pytest.approx(1.0 + 0.05 * 2, rel=1e-6)
+
+
 def test_tof_offset_moves_only_after_an_independent_tip():
     f, s, R, p = _run_static(3.0, np.zeros(3))
     rho = _range(f.c, R, p)
