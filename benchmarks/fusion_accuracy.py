@@ -179,7 +179,7 @@ def _run(args: argparse.Namespace, variants: list[str]) -> int:
             )
         for a, b, target in args.ratios:
             r = pooled_ratio(series[a], series[b], target, args.segment_s)
-            results.append({"session": Path(path).name, "ratio": f"{a}:{b}", **r})
+            results.append({"session": Path(path).name, "ratio_of": f"{a}:{b}", **r})
             verdict = "above" if r["above"] else "below" if r["below"] else "a tie with"
             print(
                 f"{Path(path).name:<22} {a} / {b} pooled {r['rmse_a_mm']:.3f} / {r['rmse_b_mm']:.3f} = "

@@ -118,7 +118,8 @@ def test_the_benchmark_compares_blocks_and_tallies_them(tmp_path_factory, tmp_pa
     rows = json.loads(out.read_text())
     runs = {r["variant"]: r for r in rows if "variant" in r}
     (cmp_row,) = [r for r in rows if "compare" in r]
-    (ratio,) = [r for r in rows if "ratio" in r]
+    (ratio,) = [r for r in rows if "ratio_of" in r]
+    assert ratio["ratio_of"] == "imu_vision:full"
     full_pooled = runs["full"]["pooled"]["tip_rmse_mm"]
     assert ratio["rmse_b_mm"] == pytest.approx(full_pooled, rel=1e-9)  # every block pooled
     assert ratio["ratio"] == pytest.approx(runs["imu_vision"]["pooled"]["tip_rmse_mm"] / full_pooled, rel=1e-9)
