@@ -762,11 +762,9 @@ class TrackingFilter:
         """The axis frame's variance factor, 1 + `vision_axis_revisit_weight` times the summed
         Gaussian kernel weight, in shaft direction and tip position, of the axis frames applied
         within `vision_axis_revisit_window_s` (older ones are dropped here). Why: the planes'
-        error is mostly pose-locked (the paper's held-out 0.11 deg against a per-frame scatter
-        far below it), so frames at one pose share it. The fixed inflation of
-        `vision_plane_sigma_deg` suits a path that moves on; at a held attitude (the depth sweep,
-        a hold, an oscillation of a few degrees) the state followed that pose's error, and one
-        frame in three or a fivefold noisier axis tracked the sweeps better than every frame."""
+        error is mostly pose-locked, so frames at one pose share it. The fixed inflation of
+        `vision_plane_sigma_deg` suits a path that moves on; at a held attitude (a depth sweep,
+        a hold, an oscillation of a few degrees) the state would settle on that pose's error."""
         w = self.prm.vision_axis_revisit_weight
         if not w > 0:
             return 1.0
