@@ -83,6 +83,29 @@ def test_under_tiplog_up_a_service_leaves_sigint_to_the_supervisor(bus_pair_conf
     assert "stopped on SIGTERM" in err, err[-2000:]
 
 
+@pytest.mark.parametrize("supervised", [True, False])
+def test_a_ctrl_c_while_a_supervised_process_still_imports_ends_nothing(supervised):
+    # The group's Ctrl-C can land before a child (or its spare) has set its handlers: the first
+    # import of the services package already leaves it to the supervisor. A process of its own
+    # still stops on Ctrl-C.
+    code = (
+        "import os, signal, services\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "import services.fusion.config\n"
+        "print('still importing')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop(SUPERVISED_ENV, None)
+    if supervised:
+        env[SUPERVISED_ENV] = "1"
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    if supervised:
+        assert proc.returncode == 0 and "still importing" in proc.stdout, proc.stderr[-2000:]
+        assert "Traceback" not in proc.stderr
+    else:
+        assert proc.returncode != 0 and "KeyboardInterrupt" in proc.stderr
+
+
 def test_bad_config_value_exits_2_with_one_line(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "services.fusion", "--set", "status_period_s=0"],
