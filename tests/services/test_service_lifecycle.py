@@ -88,8 +88,10 @@ def test_a_ctrl_c_while_a_supervised_process_still_imports_ends_nothing(supervis
     # The group's Ctrl-C can land before a child (or its spare) has set its handlers: the first
     # import of the services package already leaves it to the supervisor. A process of its own
     # still stops on Ctrl-C.
-    code = (
-        "import os, signal, services\n"
+    code = (  # Python's own Ctrl-C handler first: a test runner may hand its children SIGINT ignored
+        "import signal\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "import os, services\n"
         "os.kill(os.getpid(), signal.SIGINT)\n"
         "import services.fusion.config\n"
         "print('still importing')\n"
