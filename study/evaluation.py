@@ -196,11 +196,17 @@ def block_errors_mm(series: list) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return {name: (t, e * 1e3) for name, t, _, _, e in series}
 
 
-def _paired_segments(
-    t_a_ns: np.ndarray, err_a_mm: np.ndarray, t_b_ns: np.ndarray, err_b_mm: np.ndarray, segment_s: float, where: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per `segment_s` segment of the samples both estimated: (sample count, a's and b's sums of
-    squared error). Stamps more than a segment apart (two blocks) never share one."""
+def _paired_bootstrap(
+    where: str, t_a_ns: np.ndarray, err_a_mm: np.ndarray, t_b_ns: np.ndarray, err_b_mm: np.ndarray,
+    segment_s: float, draws: int, level: float, seed: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The block bootstrap `paired_rmse_difference` and `paired_rmse_ratio` share: per
+    `segment_s` segment of the samples both estimated, (sample count, a's and b's sums of squared
+    error), and `draws` rows of segment indices drawn with replacement. Stamps more than a
+    segment apart (two blocks) never share one. Raises EvaluationError (naming `where`) for no
+    common samples or a segment length, draw count or level out of range."""
+    if not segment_s > 0 or draws < 1 or not 0 < level < 1:
+        raise EvaluationError(f"{where}: segment_s {segment_s}, draws {draws}, level {level}")
     t, ia, ib = np.intersect1d(np.asarray(t_a_ns), np.asarray(t_b_ns), assume_unique=True, return_indices=True)
     if len(t) == 0:
         raise EvaluationError(f"{where}: the two estimates share no sample time")
@@ -210,12 +216,8 @@ def _paired_segments(
     _, seg = np.unique(seg, return_inverse=True)
     k = int(seg.max()) + 1
     n = np.bincount(seg, minlength=k).astype(float)
-    return n, np.bincount(seg, sq_a, minlength=k), np.bincount(seg, sq_b, minlength=k)
-
-
-def _check_bootstrap(where: str, segment_s: float, draws: int, level: float) -> None:
-    if not segment_s > 0 or draws < 1 or not 0 < level < 1:
-        raise EvaluationError(f"{where}: segment_s {segment_s}, draws {draws}, level {level}")
+    idx = np.random.default_rng(seed).integers(0, k, size=(draws, k))
+    return n, np.bincount(seg, sq_a, minlength=k), np.bincount(seg, sq_b, minlength=k), idx
 
 
 def paired_rmse_difference(
@@ -232,10 +234,9 @@ def paired_rmse_difference(
     the interval excludes zero (a difference the block shows, not one a different course of
     the same kind of motion could reverse), else 0. Raises EvaluationError for no common
     samples or a segment length, draw count or level out of range."""
-    _check_bootstrap("paired_rmse_difference", segment_s, draws, level)
-    n, ss_a, ss_b = _paired_segments(t_a_ns, err_a_mm, t_b_ns, err_b_mm, segment_s, "paired_rmse_difference")
-    k = len(n)
-    idx = np.random.default_rng(seed).integers(0, k, size=(draws, k))
+    n, ss_a, ss_b, idx = _paired_bootstrap(
+        "paired_rmse_difference", t_a_ns, err_a_mm, t_b_ns, err_b_mm, segment_s, draws, level, seed
+    )
     n_d = n[idx].sum(1)
     diff_d = np.sqrt(ss_a[idx].sum(1) / n_d) - np.sqrt(ss_b[idx].sum(1) / n_d)
     lo, hi = np.quantile(diff_d, [(1 - level) / 2, (1 + level) / 2])
@@ -247,7 +248,7 @@ def paired_rmse_difference(
         "low_mm": float(lo),
         "high_mm": float(hi),
         "resolved": int(lo > 0 or hi < 0),
-        "segments": k,
+        "segments": len(n),
     }
 
 
@@ -262,12 +263,11 @@ def paired_rmse_ratio(
     more than `segment_s` apart. `above` / `below` are 1 where the whole interval lies above /
     below `target`; neither is a tie with it. Raises EvaluationError as
     `paired_rmse_difference`, and for b without error."""
-    _check_bootstrap("paired_rmse_ratio", segment_s, draws, level)
-    n, ss_a, ss_b = _paired_segments(t_a_ns, err_a_mm, t_b_ns, err_b_mm, segment_s, "paired_rmse_ratio")
+    n, ss_a, ss_b, idx = _paired_bootstrap(
+        "paired_rmse_ratio", t_a_ns, err_a_mm, t_b_ns, err_b_mm, segment_s, draws, level, seed
+    )
     if not ss_b.sum() > 0:
         raise EvaluationError("paired_rmse_ratio: the second estimate has no error to divide by")
-    k = len(n)
-    idx = np.random.default_rng(seed).integers(0, k, size=(draws, k))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio_d = np.sqrt(ss_a[idx].sum(1) / ss_b[idx].sum(1))
     lo, hi = np.nanquantile(ratio_d, [(1 - level) / 2, (1 + level) / 2])
@@ -280,7 +280,7 @@ def paired_rmse_ratio(
         "target": float(target),
         "above": int(lo > target),
         "below": int(hi < target),
-        "segments": k,
+        "segments": len(n),
     }
 
 
