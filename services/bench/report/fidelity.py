@@ -316,27 +316,22 @@ def _median_se(se: np.ndarray) -> float | None:
     return float(np.sqrt(np.pi / 2) * se.mean() / np.sqrt(len(se))) if len(se) else None
 
 
-def _se_row(spec: tuple, value: float | None, se: float | None, note: str) -> Row:
-    """A statistic of rest windows with its sampling standard error: PASS also within 2 SE of the
-    range (a few 2 s windows of a teleoperated session estimate a 0.06 % norm or a 3 mm scatter to
-    a few per cent; the paper's holds were 30 s)."""
+def _se_row(spec: tuple, value: float | None, se: float | None, note: str, se_fmt: str = "{:.3g}") -> Row:
+    """A statistic with its sampling standard error: PASS also within 2 SE of the range (a few
+    2 s rest windows of a teleoperated session estimate a 0.06 % norm or a 3 mm scatter to a few
+    per cent; the paper's holds were 30 s)."""
     r = _row(*spec, value, note)
     if value is not None and se is not None:
-        r.note = (r.note + "; " if r.note else "") + f"SE {se:.3g}"
+        r.note = (r.note + ", " if r.note else "") + "SE " + se_fmt.format(se)
         if r.status == "FAIL" and r.lo - 2 * se <= value <= r.hi + 2 * se:
             r.status, r.note = "PASS", r.note + " (within 2 SE)"
     return r
 
 
 def _rate_row(spec: tuple, pct: float | None, n: int, note: str) -> Row:
-    """A percentage over n frames: PASS also within 2 binomial standard errors of the range."""
-    r = _row(*spec, pct, note)
-    if pct is not None:
-        se = 100.0 * np.sqrt(max(pct / 100 * (1 - pct / 100), 1e-4) / n)
-        r.note += f", SE {se:.1f} %"
-        if r.status == "FAIL" and r.lo - 2 * se <= pct <= r.hi + 2 * se:
-            r.status, r.note = "PASS", r.note + " (within 2 SE)"
-    return r
+    """A percentage over n frames, with its binomial standard error (`_se_row`)."""
+    se = None if pct is None else 100.0 * np.sqrt(max(pct / 100 * (1 - pct / 100), 1e-4) / n)
+    return _se_row(spec, pct, se, note, "{:.1f} %")
 
 
 GROSS_JUNCTION_MM = 5.0
